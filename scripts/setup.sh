@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Set up everything stepnf needs on Debian 12, idempotently: Debian packages
+# (FEniCSx, CalculiX, numpy/scipy/h5py built against them), then a virtual
+# environment .venv that sees them (--system-site-packages) with stepnf and its
+# solver adapters installed in editable mode. Fast when already done.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+
+apt_packages=(python3-venv python3-setuptools python3-wheel python3-numpy python3-scipy python3-h5py
+  python3-matplotlib python3-meshio python3-pytest python3-dask python3-distributed
+  python3-dolfinx-real calculix-ccx)
+missing=()
+for p in "${apt_packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing Debian packages: ${missing[*]}"
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv (with the system site packages, for FEniCSx)"
+  /usr/bin/python3 -m venv --system-site-packages .venv
+fi
+
+# editable installs of the core and of every adapter distribution under solvers/
+dists=(.)
+for d in solvers/*/; do [ -f "$d/pyproject.toml" ] && dists+=("${d%/}"); done
+stamp=$(cat pyproject.toml solvers/*/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)
+if [ "$(cat .venv/.stepnf-stamp 2>/dev/null)" != "$stamp" ]; then
+  echo "setup: installing stepnf and adapters: ${dists[*]}"
+  args=()
+  for d in "${dists[@]}"; do args+=(-e "$d"); done
+  .venv/bin/python -m pip install -q --no-build-isolation --disable-pip-version-check "${args[@]}"
+  echo "$stamp" > .venv/.stepnf-stamp
+fi
+# FEniCSx form compilation cache inside the project
+mkdir -p .cache

@@ -1,0 +1,20 @@
+"""The ``polynomial`` solver adapter: a system given by its tensors.
+
+``f(u)_i = sum_j K_ij u_j + sum_jk G_ijk u_j u_k + sum_jkl H_ijkl u_j u_k u_l``
+
+read from an ``.npz`` or HDF5 file (``.h5``/``.hdf5``) holding arrays ``M``
+(n, n), ``K`` (n, n), ``G`` (n, n, n), ``H`` (n, n, n, n), and optionally
+``coordinates`` (n, 3), ``directions`` (n,) (codes of
+:data:`stepnf.adapter.DIRECTIONS`) and ``length`` (a characteristic length for
+the automatic STEP amplitude). ``G`` and ``H`` are symmetrised in their lower
+indices on loading (only that part acts in ``f``). Scene keys::
+
+    [model]
+    solver = "polynomial"
+    file = "system.npz"      # relative to the scene
+"""
+from __future__ import annotations
+
+from .adapter import PolynomialAdapter, load_system, save_system
+
+__all__ = ["PolynomialAdapter", "load_system", "save_system"]

@@ -1,0 +1,231 @@
+"""The solver-adapter protocol: how stepnf talks to a finite-element code.
+
+An adapter wraps one FE model of one solver. stepnf only ever asks it for
+
+* the number of dofs, and (optionally) the node coordinate and direction of
+  every dof;
+* the mass matrix ``M`` and the linear stiffness matrix ``K`` (sparse,
+  symmetric, in the solver's own units, constrained dofs removed);
+* the internal force ``f(u)`` for prescribed displacement fields ``u``
+  (one field or a batch), with the sign convention of ``K u`` (so that
+  ``M x'' + f(x) = 0``).
+
+Implement **either** :meth:`SolverAdapter._internal_force` (one field; an
+in-process solver) **or** :meth:`SolverAdapter._internal_forces` (a batch; a
+file-driven external solver, so that one solver launch serves a whole STEP
+plan). Each defaults to the other, as in scipy's ``LinearOperator``. The public
+methods :meth:`internal_force` and :meth:`internal_forces` check shapes and
+finiteness and then call the hooks.
+
+Optional capabilities are declared with class flags and have default
+implementations that raise:
+
+``provides_eigenmodes``
+    :meth:`eigenmodes` solves the generalised eigenproblem inside the solver
+    (e.g. SLEPc under MPI).
+``provides_shifted_solves``
+    :meth:`shifted_solver` factorises ``K - sigma M`` inside the solver.
+``provides_intrusive_tensors``
+    :meth:`quadratic_force` and :meth:`cubic_force` give the exact ``G(u, v)``
+    and ``H(u, v, w)`` (for regression tests of the non-intrusive route).
+
+Units are the solver's own (stepnf never assumes SI). Displacements and forces
+are plain float64 numpy arrays ordered like the rows of ``M`` and ``K``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, ClassVar, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import AdapterError, SceneError
+
+#: Direction codes of :meth:`SolverAdapter.dof_directions`.
+DIRECTIONS = ("ux", "uy", "uz", "rx", "ry", "rz")
+
+
+class SolverAdapter:
+    """Base class of every solver adapter (see the module docstring)."""
+
+    #: Entry-point name (informative; the registry uses the entry-point name).
+    name: ClassVar[str] = ""
+    #: The solver computes eigenmodes itself (:meth:`eigenmodes`).
+    provides_eigenmodes: ClassVar[bool] = False
+    #: The solver factorises ``K - sigma M`` itself (:meth:`shifted_solver`).
+    provides_shifted_solves: ClassVar[bool] = False
+    #: The solver offers exact ``G`` and ``H`` (:meth:`quadratic_force`, :meth:`cubic_force`).
+    provides_intrusive_tensors: ClassVar[bool] = False
+    #: Evaluating many fields in one call is much cheaper than one by one.
+    prefers_batches: ClassVar[bool] = False
+
+    # ------------------------------------------------------------------ set-up
+    @classmethod
+    def from_config(
+        cls,
+        config: Mapping[str, Any],
+        *,
+        base_dir: Path,
+        scene_file: Path | None = None,
+    ) -> "SolverAdapter":
+        """Build the adapter from the scene's ``[model]`` table.
+
+        ``config`` holds every key of ``[model]`` except ``solver``; relative
+        paths are relative to ``base_dir`` (the scene's folder). Override this
+        to validate keys; raise :class:`stepnf.errors.SceneError` naming the
+        key and the allowed values.
+        """
+        try:
+            return cls(**dict(config))  # type: ignore[call-arg]
+        except TypeError as exc:
+            raise SceneError(scene_file, "model", f"{cls.__name__} rejected the keys: {exc}") from exc
+
+    def close(self) -> None:
+        """Release solver resources (work folders, processes). Idempotent."""
+
+    def __enter__(self) -> "SolverAdapter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------ required API
+    @property
+    def n_dofs(self) -> int:
+        """Number of free dofs (rows of ``M`` and ``K``)."""
+        raise NotImplementedError
+
+    def mass_matrix(self) -> sp.spmatrix:
+        """Mass matrix ``M`` (n, n), symmetric positive definite, sparse."""
+        raise NotImplementedError
+
+    def stiffness_matrix(self) -> sp.spmatrix:
+        """Linear stiffness ``K = df/du(0)`` (n, n), symmetric, sparse."""
+        raise NotImplementedError
+
+    def _internal_force(self, u: np.ndarray) -> np.ndarray:
+        """Hook: internal force for one field ``u`` (n,). Defaults to the batch hook."""
+        if type(self)._internal_forces is SolverAdapter._internal_forces:
+            raise NotImplementedError(
+                f"{type(self).__name__} implements neither _internal_force nor _internal_forces"
+            )
+        return self._internal_forces(u[None, :])[0]
+
+    def _internal_forces(self, U: np.ndarray) -> np.ndarray:
+        """Hook: internal forces for a batch ``U`` (m, n), one field per row."""
+        if type(self)._internal_force is SolverAdapter._internal_force:
+            raise NotImplementedError(
+                f"{type(self).__name__} implements neither _internal_force nor _internal_forces"
+            )
+        return np.stack([self._internal_force(u) for u in U]) if len(U) else np.zeros((0, self.n_dofs))
+
+    # ------------------------------------------------------------- public API
+    def internal_force(self, u: np.ndarray) -> np.ndarray:
+        """Internal force ``f(u)`` (n,) for one displacement field ``u`` (n,)."""
+        u = self._check_field(u)
+        f = np.asarray(self._internal_force(u), dtype=float)
+        return self._check_forces(f.reshape(1, -1) if f.ndim == 1 else f, 1)[0]
+
+    def internal_forces(self, U: np.ndarray) -> np.ndarray:
+        """Internal forces (m, n) for a batch of fields ``U`` (m, n)."""
+        U = np.asarray(U, dtype=float)
+        if U.ndim != 2 or U.shape[1] != self.n_dofs:
+            raise AdapterError(
+                f"{type(self).__name__}.internal_forces: expected fields of shape (m, {self.n_dofs}), got {U.shape}"
+            )
+        if not np.all(np.isfinite(U)):
+            raise AdapterError("prescribed displacement fields contain NaN or inf")
+        if len(U) == 0:
+            return np.zeros((0, self.n_dofs))
+        return self._check_forces(np.asarray(self._internal_forces(U), dtype=float), len(U))
+
+    def _check_field(self, u: np.ndarray) -> np.ndarray:
+        u = np.asarray(u, dtype=float)
+        if u.shape != (self.n_dofs,):
+            raise AdapterError(
+                f"{type(self).__name__}.internal_force: expected a field of shape ({self.n_dofs},), got {u.shape}"
+            )
+        if not np.all(np.isfinite(u)):
+            raise AdapterError("prescribed displacement field contains NaN or inf")
+        return u
+
+    def _check_forces(self, F: np.ndarray, m: int) -> np.ndarray:
+        if F.shape != (m, self.n_dofs):
+            raise AdapterError(
+                f"{type(self).__name__} returned forces of shape {F.shape}, expected ({m}, {self.n_dofs})"
+            )
+        bad = ~np.isfinite(F)
+        if bad.any():
+            rows = sorted(set(np.nonzero(bad)[0].tolist()))
+            raise AdapterError(
+                f"{type(self).__name__} returned NaN or inf internal forces for field(s) {rows[:10]} "
+                f"({int(bad.sum())} entries); the solver probably failed to converge or diverged"
+            )
+        return F
+
+    # -------------------------------------------------------- optional geometry
+    def dof_coordinates(self) -> np.ndarray | None:
+        """Coordinates (n, 3) of the node carrying each dof, or ``None``."""
+        return None
+
+    def dof_directions(self) -> np.ndarray | None:
+        """Direction code (n,) of each dof: index into :data:`DIRECTIONS`, or ``None``."""
+        return None
+
+    def characteristic_length(self) -> float | None:
+        """Length (model units) at which the model becomes nonlinear, e.g. a shell's thickness.
+
+        Used by the automatic STEP amplitude. The default is the smallest
+        extent of the bounding box of the dof coordinates (the thickness of a
+        plate), or ``None`` when the adapter has no coordinates.
+        """
+        X = self.dof_coordinates()
+        if X is None or len(X) == 0:
+            return None
+        ext = np.ptp(np.asarray(X, dtype=float), axis=0)
+        ext = ext[ext > 0]
+        return float(ext.min()) if ext.size else None
+
+    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
+        """Labels of the mode shapes (columns of ``Phi``), e.g. ``(k, n)`` tuples; ``None`` when unknown."""
+        return [None] * Phi.shape[1]
+
+    def transverse_amplitude(self, phi: np.ndarray) -> float | None:
+        """Largest transverse mid-surface displacement of a mode shape (for Gamma), or ``None``."""
+        return None
+
+    def shell_scales(self) -> Any | None:
+        """A :class:`stepnf.shell.ShellScales` for shell models (kappa, w_bar, Gamma), or ``None``."""
+        return None
+
+    def describe(self) -> dict[str, Any]:
+        """Facts about the model worth storing with the results (JSON-serialisable)."""
+        return {"adapter": type(self).__name__, "n_dofs": int(self.n_dofs)}
+
+    # ------------------------------------------------------ optional capability
+    def eigenmodes(self, n_modes: int, *, shift: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Lowest ``n_modes`` eigenpairs ``(omega**2 (m,), Phi (n, m))`` nearest ``shift``, M-normalised."""
+        raise NotImplementedError(f"{type(self).__name__} does not provide eigenmodes")
+
+    def shifted_solver(
+        self, sigma: float, *, fixed_dofs: Sequence[int] | None = None
+    ) -> Callable[[np.ndarray], np.ndarray]:
+        """Factorise ``K - sigma M`` (with ``fixed_dofs`` held at zero) and return ``solve(b)``."""
+        raise NotImplementedError(f"{type(self).__name__} does not provide shifted solves")
+
+    def quadratic_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Exact symmetric bilinear term ``G(u, v)`` (n,)."""
+        raise NotImplementedError(f"{type(self).__name__} does not provide intrusive tensors")
+
+    def cubic_force(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Exact symmetric trilinear term ``H(u, v, w)`` (n,)."""
+        raise NotImplementedError(f"{type(self).__name__} does not provide intrusive tensors")
+
+
+def implements_forces(cls: type) -> bool:
+    """True when ``cls`` overrides at least one of the two internal-force hooks."""
+    return (
+        getattr(cls, "_internal_force", None) is not SolverAdapter._internal_force
+        or getattr(cls, "_internal_forces", None) is not SolverAdapter._internal_forces
+    )

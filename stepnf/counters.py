@@ -1,0 +1,25 @@
+"""Work counters reported in every result (``counts`` in the JSON)."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass
+class Counters:
+    """What a run asked of the solver and of the linear algebra.
+
+    ``force_evaluations``: prescribed displacement fields sent to the solver.
+    ``linear_solves``: right-hand sides solved with a factorisation, outside
+    the eigen-solver. ``factorizations``: sparse (or dense) factorisations,
+    the eigen-solver's included. ``eigensolver_solves``: solves made inside
+    the eigen-solver's iterations.
+    """
+
+    force_evaluations: int = 0
+    linear_solves: int = 0
+    factorizations: int = 0
+    eigensolver_solves: int = 0
+    solver_runs: int = 0
+
+    def to_dict(self) -> dict[str, int]:
+        return asdict(self)

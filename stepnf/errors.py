@@ -1,0 +1,72 @@
+"""Exceptions raised by stepnf.
+
+Every error a user can provoke says *where* (file, key or stage), *what was
+given* and *what is allowed*, in the style of meshio's messages.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterable
+
+
+class StepnfError(Exception):
+    """Base class of every error stepnf raises on purpose."""
+
+
+class SceneError(StepnfError, ValueError):
+    """A scene file is malformed or contradictory.
+
+    Parameters
+    ----------
+    file : path of the scene (or ``None`` for an in-memory scene)
+    key : dotted key, e.g. ``"analysis.master_modes"``
+    message : what is wrong and what is allowed
+    """
+
+    def __init__(self, file: str | Path | None, key: str | None, message: str):
+        self.file = None if file is None else str(file)
+        self.key = key
+        self.message = message
+        where = self.file or "<scene>"
+        if key:
+            where += f": [{key}]"
+        super().__init__(f"{where}: {message}")
+
+
+class AdapterError(StepnfError):
+    """A solver adapter returned something unusable (wrong shape, NaN, ...)."""
+
+
+class SolverRunError(StepnfError):
+    """An external solver failed: missing executable, exit code, time-out, missing output."""
+
+    def __init__(self, message: str, *, workdir: str | Path | None = None, log_tail: str = ""):
+        self.workdir = None if workdir is None else str(workdir)
+        self.log_tail = log_tail
+        text = message
+        if workdir is not None:
+            text += f"\n  work folder: {workdir}"
+        if log_tail:
+            text += "\n  end of the solver log:\n    " + "\n    ".join(log_tail.rstrip().splitlines())
+        super().__init__(text)
+
+
+class UnknownSolverError(StepnfError, ValueError):
+    """No adapter is installed under the requested name."""
+
+    def __init__(self, name: str, installed: Iterable[str]):
+        self.name = name
+        self.installed = sorted(installed)
+        super().__init__(
+            f"Unknown solver {name!r}. Pick one of {self.installed} "
+            "(adapters register under the entry-point group 'stepnf.solvers')."
+        )
+
+
+class NumericalError(StepnfError, ArithmeticError):
+    """A numerical stage cannot produce a meaningful number (singular matrix, NaN)."""
+
+
+def allowed(values: Iterable[Any]) -> str:
+    """Format a list of allowed values for an error message."""
+    return "[" + ", ".join(repr(v) for v in values) + "]"

@@ -1,0 +1,227 @@
+"""Evaluators of T for one master mode: NF, DNF, MD, SMD (DESIGN.md section 1).
+
+Modal versions sum over retained elastic modes ``S`` (Table 1, with the
+erratum: NF denominators ``w_s^2 (w_s^2 - 4 w^2)``). Full-order versions need
+no modal truncation: DNF two linear solves, SMD the ``K^+`` solve of DNF, MD
+a bordered solve with ``K - w^2 M``.
+
+Conventions: ``omega`` angular frequencies (m,) of the elastic modes,
+``g[s] = g^s_pp = phi_s^T G(phi_p, phi_p)``, ``h = h^p_ppp``; everything in the
+model's own units. A term whose ``|g_s|`` is below ``coupling_tolerance``
+times the largest ``|g_s|`` is treated as zero by symmetry (so a degenerate
+twin that does not couple cannot blow up MD); a coupled mode within
+``resonance_tolerance`` of the resonance (``w_s/w_p`` near 2 for NF/DNF, near
+1 for MD) is flagged, naming the mode; exact resonance gives ``+-inf``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .backbone import MethodResult, backbone_T, qm_coefficients
+from .counters import Counters
+from .linalg import Factorization, PseudoInverse, factorize
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Thresholds of the evaluators (scene table ``[analysis]``)."""
+
+    coupling: float = 1e-8
+    resonance: float = 0.05
+
+
+def coupled(g: np.ndarray, tol: float) -> np.ndarray:
+    """Mask of modes whose ``|g_s|`` exceeds ``tol * max|g|`` (and is not exactly zero)."""
+    a = np.abs(np.asarray(g, dtype=float))
+    top = a.max() if a.size else 0.0
+    return (a > tol * top) & (a > 0)
+
+
+def _resonance_flags(method: str, p: int, omega: np.ndarray, g: np.ndarray, S: Sequence[int],
+                     ratio: float, tol: Tolerances, labels: Sequence[Any] | None) -> list[dict]:
+    flags = []
+    cp = coupled(g, tol.coupling)
+    for s in S:
+        if s == p or not cp[s]:
+            continue
+        r = omega[s] / omega[p]
+        if abs(r - ratio) <= tol.resonance * ratio:
+            kind = "internal_resonance_1_2" if ratio == 2 else "internal_resonance_1_1"
+            lab = labels[s] if labels is not None else None
+            flags.append({
+                "kind": kind, "mode": int(s), "label": lab, "ratio": float(r),
+                "message": f"{method.upper()}: mode {s}{'' if lab is None else ' ' + str(lab)} is in "
+                           f"{'1:2' if ratio == 2 else '1:1'} internal resonance with master mode {p} "
+                           f"(w_s/w_p = {r:.4f}); the {'normal form' if ratio == 2 else 'modal derivative'} "
+                           "has a small denominator there",
+            })
+    return flags
+
+
+def _sum_terms(num: np.ndarray, den: np.ndarray) -> tuple[float, bool]:
+    """Sum of num/den; True when some denominator is exactly zero with a non-zero numerator."""
+    zero = (den == 0) & (num != 0)
+    safe = np.where(den == 0, 1.0, den)
+    return float(np.sum(np.where(den == 0, 0.0, num / safe))), bool(zero.any())
+
+
+def retained_set(p: int, n_retained: int | None, m: int) -> np.ndarray:
+    """Indices of the retained elastic modes: the first ``n_retained`` (all when None), plus ``p``."""
+    n = m if n_retained is None else min(int(n_retained), m)
+    S = list(range(n))
+    if p not in S:
+        S.append(p)
+    return np.asarray(sorted(S))
+
+
+def nf_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, *,
+             tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None,
+             method: str = "nf") -> MethodResult:
+    """Normal form, modal sums over ``S`` (Table 1, NF row, corrected denominators)."""
+    w2 = omega[p] ** 2
+    cp = coupled(g, tol.coupling)
+    Sc = np.asarray([s for s in S if cp[s]], dtype=int)
+    ws2, gs2 = omega[Sc] ** 2, g[Sc] ** 2
+    den = ws2 * (ws2 - 4 * w2)
+    a4, d4 = _sum_terms(2 * gs2 * (ws2 - 2 * w2), den)
+    c5, d5 = _sum_terms(4 * gs2 * w2, den)
+    C = (0.0, 0.0, 0.0, h - a4, c5, 0.0)
+    flags = _resonance_flags(method, p, omega, g, S, 2.0, tol, labels)
+    T = -np.inf if (d4 or d5) else backbone_T(C, omega[p])
+    if d4 or d5:
+        C = (0.0, 0.0, 0.0, -np.inf, np.inf, 0.0)
+    return MethodResult(method, float(T), C, flags, order="modal", retained_modes=len(S))
+
+
+def md_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, *,
+             tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None) -> MethodResult:
+    """Quadratic manifold with modal derivatives, modal sums over ``S \\ {p}`` (Table 1, MD row)."""
+    w2 = omega[p] ** 2
+    cp = coupled(g, tol.coupling)
+    Sc = np.asarray([s for s in S if s != p and cp[s]], dtype=int)
+    ws2, gs2 = omega[Sc] ** 2, g[Sc] ** 2
+    den = (ws2 - w2) ** 2
+    a4, d4 = _sum_terms(2 * gs2 * (ws2 - 2 * w2), den)
+    c5, d5 = _sum_terms(4 * gs2 * w2, den)
+    flags = _resonance_flags("md", p, omega, g, S, 1.0, tol, labels)
+    if d4 or d5:  # exact 1:1 with a coupled mode: T -> -inf (3 C4 + C5 - 3 C6 ~ -2 g^2 w^2 / 0)
+        return MethodResult("md", -np.inf, (float(g[p]), 0.0, 0.0, np.inf, np.inf, np.inf), flags,
+                            order="modal", retained_modes=len(S))
+    C = (float(g[p]), 0.0, 0.0, h - a4, c5, c5)
+    return MethodResult("md", backbone_T(C, omega[p]), C, flags, order="modal", retained_modes=len(S))
+
+
+def smd_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, *,
+              tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None) -> MethodResult:
+    """Quadratic manifold with static modal derivatives, modal sums over ``S`` (Table 1, SMD row)."""
+    w2 = omega[p] ** 2
+    cp = coupled(g, tol.coupling)
+    Sc = np.asarray([s for s in S if cp[s]], dtype=int)
+    ws2, gs2 = omega[Sc] ** 2, g[Sc] ** 2
+    gp = float(g[p])
+    C = (-2 * gp, -2 * gp, -4 * gp, h - float(np.sum(2 * gs2 / ws2)),
+         float(np.sum(4 * gs2 * w2 / ws2**2)), float(np.sum(4 * gs2 * w2 / ws2**2)))
+    return MethodResult("smd", backbone_T(C, omega[p]), C, [], order="modal", retained_modes=len(S))
+
+
+# ---------------------------------------------------------------- full order
+@dataclass
+class FullOrderContext:
+    """What the full-order evaluators share: matrices, the supported-K pseudo-inverse, counters."""
+
+    K: sp.spmatrix
+    M: sp.spmatrix
+    Kpinv: PseudoInverse
+    counters: Counters
+    backend: str = "auto"
+    shifted: Callable[[float, str], Factorization] | None = None
+
+    def shifted_factorization(self, sigma: float, label: str) -> Factorization:
+        if self.shifted is not None:
+            return self.shifted(sigma, label)
+        A = (sp.csr_matrix(self.K) - sigma * sp.csr_matrix(self.M)).tocsr()
+        return factorize(A, counters=self.counters, backend=self.backend, label=label)
+
+
+def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
+        *, dGv: np.ndarray | None = None, dh: float = 0.0) -> tuple[MethodResult, np.ndarray]:
+    """Direct normal form, full order (paper Eq. 9-10): two linear solves.
+
+    Returns the result and ``y = K^+ Gv`` (reused by full-order SMD). With
+    ``dGv``, ``dh`` (differences at the STEP check amplitude) ``T_error`` is
+    the first-order change of T: ``dA = 4 dGv^T a_bar``, ``dB = 4 dGv^T b_bar``.
+    """
+    w2 = omega_p ** 2
+    y = ctx.Kpinv(Gv)
+    Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
+    z = Z.solve(Gv - ctx.M @ (ctx.Kpinv.R @ (ctx.Kpinv.R.T @ Gv)) if ctx.Kpinv.R.shape[1] else Gv)
+    a_bar = -0.5 * (y + z)
+    b_bar = (z - y) / (2 * w2)
+    A = 2 * float(a_bar @ Gv)
+    B = 2 * float(b_bar @ Gv)
+    T = (3 * (A + h) + w2 * B) / (8 * w2)
+    res = MethodResult("dnf", T, (0.0, 0.0, 0.0, A + h, w2 * B, 0.0), [], order="full")
+    res.extra = {"A": A, "B": B, "h": h}
+    if dGv is not None:
+        dA, dB = 4 * float(dGv @ a_bar), 4 * float(dGv @ b_bar)
+        dT = (3 * (dA + dh) + w2 * dB) / (8 * w2)
+        res.T_error = abs(dT) / abs(T) if T != 0 else (0.0 if dT == 0 else np.inf)
+    return res, y
+
+
+def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
+             ctx: FullOrderContext, y: np.ndarray | None = None) -> MethodResult:
+    """Static modal derivative quadratic manifold, full order: ``theta = -2 K^+ Gv`` (one solve, or none given y)."""
+    if y is None:
+        y = ctx.Kpinv(Gv)
+    theta = -2.0 * y
+    return _qm_full("smd", phi, omega_p, Gv, h, theta, ctx)
+
+
+def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
+            twins: np.ndarray | None = None, *, g: np.ndarray | None = None,
+            tol: Tolerances = Tolerances()) -> MethodResult:
+    """Modal-derivative quadratic manifold, full order.
+
+    ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
+    ``D = [phi_p, twins]`` (the degenerate companions of p), so that
+    ``theta`` is M-orthogonal to them. A twin that couples (``phi_t^T Gv``
+    not zero by symmetry) makes MD diverge: T = -inf, flagged.
+    """
+    w2 = omega_p ** 2
+    D = phi[:, None] if twins is None or len(twins) == 0 else np.column_stack([phi, twins])
+    flags: list[dict] = []
+    if D.shape[1] > 1:
+        gt = D[:, 1:].T @ Gv
+        scale = max(np.abs(g).max() if g is not None and g.size else abs(float(phi @ Gv)), 1e-300)
+        if np.any(np.abs(gt) > tol.coupling * scale):
+            flags.append({"kind": "internal_resonance_1_1", "mode": None,
+                          "message": f"MD: a degenerate twin of master mode {p} couples "
+                                     f"(|g| = {np.abs(gt).max():.3e}): modal derivative diverges"})
+            return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
+                                flags, order="full")
+    MD = ctx.M @ D
+    A = sp.bmat([[sp.csr_matrix(ctx.K) - w2 * sp.csr_matrix(ctx.M), sp.csr_matrix(MD)],
+                 [sp.csr_matrix(MD.T), None]]).tocsr()
+    fac = factorize(A, counters=ctx.counters, backend=ctx.backend, label=f"bordered K - w^2 M (mode {p})")
+    rhs = np.concatenate([-2.0 * Gv, np.zeros(D.shape[1])])
+    theta = fac.solve(rhs)[: len(Gv)]
+    res = _qm_full("md", phi, omega_p, Gv, h, theta, ctx)
+    res.flags = flags + res.flags
+    return res
+
+
+def _qm_full(method: str, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
+             theta: np.ndarray, ctx: FullOrderContext) -> MethodResult:
+    Mt = ctx.M @ theta
+    mu1 = float(phi @ Mt)
+    mu2 = float(theta @ Mt)
+    k2 = float(theta @ (ctx.K @ theta))
+    t = float(theta @ Gv)
+    C = qm_coefficients(omega_p, float(phi @ Gv), h, mu1, mu2, k2, t)
+    res = MethodResult(method, backbone_T(C, omega_p), C, [], order="full")
+    return res

@@ -1,0 +1,382 @@
+"""Run a scene: adapter -> modal analysis -> evaluation plan -> STEP -> evaluators -> results.
+
+Only what the scene asks for is computed: NF/DNF/MD/SMD of one master mode
+need the targeted STEP (two force evaluations, four with the amplitude check),
+whatever the model size; the full STEP over the retained modes runs only when
+``analysis.tensors = "full"``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .adapter import SolverAdapter
+from .backbone import MethodResult
+from .counters import Counters
+from .errors import SceneError
+from .evaluators import (FullOrderContext, Tolerances, _resonance_flags, coupled, dnf, md_full, md_modal,
+                         nf_modal, retained_set, smd_full, smd_modal)
+from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
+from .modal import ModalBasis, modal_analysis
+from .modal_model import ModalModel
+from .progress import Progress
+from .registry import get_solver
+from .results import ModeResult, RunResult, label_text, write_hdf5
+from .scene import Scene, parse_label
+from .step import ForceEvaluator, full_step, step_amplitude, targeted_steps
+
+MODAL_METHODS = {"nf", "md_modal", "smd_modal"}
+FULL_METHODS = {"dnf", "md_full", "smd_full"}
+
+
+def resolve_methods(methods: Sequence[str], qm_order: str) -> dict[str, str]:
+    """Map each requested name to its evaluator: ``md``/``smd`` follow ``qm_order``."""
+    out = {}
+    for m in methods:
+        if m in ("md", "smd"):
+            out[m] = f"{m}_{qm_order}"
+        else:
+            out[m] = m
+    return out
+
+
+def _label_matches(label: Any, want: Any) -> bool:
+    if label is None:
+        return False
+    if isinstance(want, tuple) and isinstance(label, (tuple, list)):
+        return tuple(int(x) for x in label[:2]) == want
+    return str(label) == str(want)
+
+
+def resolve_masters(scene: Scene, labels: Sequence[Any], n_modes: int, *, complete: bool) -> list[int] | None:
+    """Elastic-mode indices of the scene's master modes; None when more modes are needed.
+
+    Raises :class:`SceneError` when a label or index cannot exist.
+    """
+    out = []
+    for i, m in enumerate(scene.master_modes):
+        if isinstance(m, int):
+            if m >= n_modes:
+                if complete:
+                    raise SceneError(scene.file, f"analysis.master_modes[{i}]",
+                                     f"mode {m} does not exist: the model has {n_modes} elastic modes (0..{n_modes - 1})")
+                return None
+            out.append(m)
+            continue
+        want = parse_label(m) or m
+        hits = [s for s, lab in enumerate(labels) if _label_matches(lab, want)]
+        if not hits:
+            if complete:
+                found = sorted({label_text(x) for x in labels if x is not None})
+                raise SceneError(scene.file, f"analysis.master_modes[{i}]",
+                                 f"no mode is labelled {m!r} among the {n_modes} modes computed; "
+                                 f"labels found: {found}")
+            return None
+        out.append(hits[0])
+    if len(set(out)) != len(out):
+        raise SceneError(scene.file, "analysis.master_modes", f"two entries name the same mode: {out}")
+    return out
+
+
+def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
+                    twins: Sequence[int]) -> tuple[float | None, int | None]:
+    """rho_p = min over coupled slave modes s of w_s / w_p (paper Eq. 8).
+
+    Slaves are the modes that the master drives through ``g^s_pp`` (others
+    cannot break the slow/fast assumption); when none couples, every
+    non-twin slave counts, as in the paper's literal definition.
+    """
+    cp = coupled(g, tol.coupling)
+    cand = [s for s in range(len(omega)) if s != p and cp[s]]
+    if not cand:
+        cand = [s for s in range(len(omega)) if s != p and s not in twins]
+    if not cand:
+        return None, None
+    r = omega[cand] / omega[p]
+    j = int(np.argmin(r))
+    return float(r[j]), int(cand[j])
+
+
+def _t_error(T: float, T2: float) -> float:
+    if not (np.isfinite(T) and np.isfinite(T2)):
+        return 0.0 if T == T2 else float("inf")
+    return abs(T - T2) / abs(T) if T != 0 else (0.0 if T2 == 0 else float("inf"))
+
+
+def _modal_method(name: str, p: int, omega, g, h, S, tol, labels) -> MethodResult:
+    if name == "nf":
+        return nf_modal(p, omega, g, h, S, tol=tol, labels=labels)
+    if name == "md_modal":
+        return md_modal(p, omega, g, h, S, tol=tol, labels=labels)
+    if name == "smd_modal":
+        return smd_modal(p, omega, g, h, S, tol=tol, labels=labels)
+    raise KeyError(name)
+
+
+def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = True) -> RunResult:
+    """Compute what ``scene`` asks for and return (and, with ``write``, store) the results."""
+    progress = progress or Progress(enabled=False)
+    cls = get_solver(scene.solver)
+    t_start = time.perf_counter()
+    if issubclass(cls, ModalModel):
+        with progress.stage("model", f"building the {scene.solver} model"):
+            model = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        try:
+            result = _run_modal_model(scene, model, progress)
+        finally:
+            model.close()
+    else:
+        with progress.stage("model", f"setting up the {scene.solver} model"):
+            adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        try:
+            result = _run_adapter(scene, adapter, progress)
+        finally:
+            adapter.close()
+    result.timings.update(progress.timings)
+    result.timings["total"] = time.perf_counter() - t_start
+    if write and scene.write_hdf5:
+        path = scene.output_dir / f"{scene.output_name}.h5"
+        write_hdf5(result, path, scene.text)
+        result.hdf5_path = str(path)
+    return result
+
+
+def _scene_summary(scene: Scene, methods: dict[str, str]) -> dict[str, Any]:
+    return {"file": str(scene.file) if scene.file else None, "solver": scene.solver,
+            "master_modes": scene.master_modes, "methods": scene.methods,
+            "evaluators": methods, "retained_modes": scene.retained_modes, "tensors": scene.tensors,
+            "step": asdict(scene.step)}
+
+
+def _run_modal_model(scene: Scene, model: ModalModel, progress: Progress) -> RunResult:
+    omega = np.asarray(model.omegas(), dtype=float)
+    labels = list(model.labels())
+    m = len(omega)
+    masters = resolve_masters(scene, labels, m, complete=True)
+    assert masters is not None
+    methods = resolve_methods(scene.methods, scene.qm_order or "modal")
+    nret = scene.retained_modes
+    scales = model.shell_scales()
+    maxima = model.mode_maxima()
+    tol = scene.tolerances
+    modes = []
+    with progress.stage("evaluators", "normal form and modal derivatives"):
+        for p in masters:
+            g = np.asarray(model.quadratic_coefficients(p), dtype=float)
+            h = float(model.cubic_coefficient(p))
+            groups = [s for s in range(m) if s != p and abs(omega[s] - omega[p]) <= scene.degeneracy_tolerance * omega[p]]
+            rho, rho_mode = slow_fast_ratio(p, omega, g, tol, groups)
+            rec = ModeResult(index=p, label=labels[p], omega=float(omega[p]), rho=rho, rho_mode=rho_mode,
+                             omega_bar=scales.omega_bar(omega[p]) if scales else None,
+                             w_max=float(maxima[p]) if maxima is not None else None)
+            for name, ev in methods.items():
+                # a modal model has no mesh: full order means every mode of the model
+                if ev in FULL_METHODS or ev.endswith("_full"):
+                    S = np.arange(m)
+                    base = {"dnf": "nf", "md_full": "md_modal", "smd_full": "smd_modal"}[ev]
+                    r = _modal_method(base, p, omega, g, h, S, tol, labels)
+                    r.method, r.order = name, "all modes"
+                else:
+                    S = retained_set(p, nret, m)
+                    r = _modal_method(ev, p, omega, g, h, S, tol, labels)
+                    r.method = name
+                if scales is not None:
+                    r.gamma = scales.gamma(r.T, rec.w_max)
+                rec.methods[name] = r
+            modes.append(rec)
+    return RunResult(scene=_scene_summary(scene, methods), modes=modes, counts=Counters().to_dict(),
+                     timings={}, spectrum={"omega": omega.tolist(), "labels": labels, "n_rigid": 0,
+                                           "degenerate_groups": []},
+                     model=model.describe(), kappa=scales.kappa if scales else None)
+
+
+def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress) -> RunResult:
+    counters = Counters()
+    tol = scene.tolerances
+    methods = resolve_methods(scene.methods, scene.qm_order or "full")
+    evaluators = set(methods.values())
+    with progress.stage("matrices", "mass and stiffness matrices"):
+        K = sp.csr_matrix(adapter.stiffness_matrix(), dtype=float)
+        M = sp.csr_matrix(adapter.mass_matrix(), dtype=float)
+    n = K.shape[0]
+    if K.shape != (n, n) or M.shape != (n, n) or n != adapter.n_dofs:
+        raise SceneError(scene.file, "model", f"the adapter returned K {K.shape} and M {M.shape} for "
+                         f"{adapter.n_dofs} dofs")
+    backend = choose_backend(n, scene.linear_solver)
+    needs_modal = bool(evaluators & MODAL_METHODS) or scene.tensors == "full"
+    int_masters = [m for m in scene.master_modes if isinstance(m, int)]
+    need = max(int_masters, default=0) + 2
+    if needs_modal:
+        need = max(need, scene.retained_modes)
+    label_cache: dict[int, list] = {}
+
+    def labels_of(b: ModalBasis) -> list:
+        key = b.n_elastic
+        if key not in label_cache:
+            label_cache.clear()
+            label_cache[key] = list(adapter.mode_labels(b.phi))
+        return label_cache[key]
+
+    def enough(b: ModalBasis) -> bool:
+        labs = labels_of(b) if any(isinstance(x, str) for x in scene.master_modes) else [None] * b.n_elastic
+        ms = resolve_masters(scene, labs, b.n_elastic, complete=False)
+        if ms is None:
+            return False
+        # the resonance checks need the spectrum up to twice the highest master frequency
+        return b.omega[-1] >= 2.0 * (1 + tol.resonance) * max(b.omega[i] for i in ms)
+
+    eig = adapter.eigenmodes if adapter.provides_eigenmodes else None
+    with progress.stage("eigen", "modal analysis"):
+        basis = modal_analysis(K, M, need, counters=counters, rigid_tolerance=scene.rigid_tolerance,
+                               rigid_modes=scene.rigid_modes, degeneracy_tolerance=scene.degeneracy_tolerance,
+                               max_modes=scene.max_modes, backend=backend, eigensolver=eig, enough=enough,
+                               progress=progress.message)
+    labels = labels_of(basis) if any(isinstance(x, str) for x in scene.master_modes) else list(adapter.mode_labels(basis.phi))
+    masters = resolve_masters(scene, labels, basis.n_elastic, complete=True)
+    assert masters is not None
+    omega, Phi = basis.omega, basis.phi
+    m = basis.n_elastic
+    run_flags: list[dict] = []
+    if not basis.complete and omega[-1] < 2.0 * max(omega[i] for i in masters):
+        run_flags.append({"kind": "resonance_check_incomplete",
+                          "message": f"modes computed up to w = {omega[-1]:.4g} only (max_modes = "
+                                     f"{scene.max_modes}); 1:2 resonances above are not checked"})
+    if needs_modal and m < scene.retained_modes:
+        run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
+                          f"{scene.retained_modes} asked for in the modal sums"})
+
+    # ---- STEP
+    mask = None
+    dirs = adapter.dof_directions()
+    if dirs is not None:
+        mask = np.asarray(dirs) < 3
+    length = adapter.characteristic_length()
+    forces = ForceEvaluator(adapter.internal_forces, n, counters,
+                            batch_size=1 << 30 if adapter.prefers_batches else 64)
+    need_targeted = bool(evaluators & FULL_METHODS) or (bool(evaluators & MODAL_METHODS) and scene.tensors != "full")
+    steps = {}
+    if need_targeted:
+        qs = np.array([step_amplitude(Phi[:, p], scene.step, length, mask) for p in masters])
+        with progress.stage("step", f"STEP (targeted): {len(masters) * (4 if scene.step.check else 2)} force evaluations"):
+            for st in targeted_steps(forces, K, Phi[:, masters], qs, scene.step, masters):
+                steps[st.p] = st
+    full = None
+    arrays: dict[str, np.ndarray] = {"omega": omega, "master_modes": np.asarray(masters)}
+    if scene.tensors == "full":
+        Sfull = retained_set(max(masters), scene.retained_modes, m)
+        qf = np.array([step_amplitude(Phi[:, s], scene.step, length, mask) for s in Sfull])
+        with progress.stage("step_full", f"STEP (full plan) over {len(Sfull)} modes"):
+            full = full_step(forces, K, Phi[:, Sfull], qf, scene.step, modes=Sfull,
+                             progress=lambda d, t: progress.bar(d, t, "STEP"))
+        arrays["g"], arrays["h"], arrays["full_modes"] = full.g, full.h, Sfull
+        run_flags += full.flags
+
+    # ---- evaluators
+    shift_solver = adapter.shifted_solver if adapter.provides_shifted_solves else None
+    ctx: FullOrderContext | None = None
+
+    def context() -> FullOrderContext:
+        nonlocal ctx
+        if ctx is None:
+            Kp = PseudoInverse(K, M, basis.rigid, counters=counters, backend=backend,
+                               solver_factory=shift_solver)
+            shifted = None
+            if shift_solver is not None:
+                def shifted(sigma: float, label: str) -> Factorization:
+                    counters.factorizations += 1
+                    raw = shift_solver(sigma)
+                    return Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, label)
+            ctx = FullOrderContext(K, M, Kp, counters, backend, shifted)
+        return ctx
+
+    scales = adapter.shell_scales()
+    modes: list[ModeResult] = []
+    with progress.stage("evaluators", "normal form and modal derivatives"):
+        for p in masters:
+            phi = Phi[:, p]
+            twins = basis.twins(p)
+            st = steps.get(p)
+            if full is not None and p in list(arrays["full_modes"]):
+                j = list(arrays["full_modes"]).index(p)
+                g_mod = np.zeros(m)
+                g_mod[arrays["full_modes"]] = full.g[:, j, j]
+                h_mod = float(full.h[j, j, j, j])
+                g_chk, h_chk = None, None
+            else:
+                g_mod = Phi.T @ st.Gv
+                h_mod = st.h
+                g_chk = Phi.T @ st.Gv_check if st.Gv_check is not None else None
+                h_chk = st.h_check
+            g_all = Phi.T @ st.Gv if st is not None else g_mod
+            rho, rho_mode = slow_fast_ratio(p, omega, g_all, tol, twins)
+            w_max = adapter.transverse_amplitude(phi)
+            rec = ModeResult(index=p, label=labels[p], omega=float(omega[p]), rho=rho, rho_mode=rho_mode,
+                             omega_bar=scales.omega_bar(omega[p]) if scales else None, w_max=w_max)
+            if st is not None:
+                rec.step = {"amplitude": st.q, "check_amplitude": st.q_check, "error_G": st.error_G,
+                            "error_h": st.error_h}
+                rec.flags += st.flags
+            y = None
+            for name, ev in methods.items():
+                if ev in MODAL_METHODS:
+                    S = retained_set(p, scene.retained_modes, m)
+                    r = _modal_method(ev, p, omega, g_mod, h_mod, S, tol, labels)
+                    if g_chk is not None:
+                        r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels)
+                        r.T_error = _t_error(r.T, r2.T)
+                elif ev == "dnf":
+                    dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
+                    dh = st.h - st.h_check if st.h_check is not None else 0.0
+                    r, y = dnf(p, phi, omega[p], st.Gv, st.h, context(), dGv=dG, dh=dh)
+                    r.flags += _resonance_flags("dnf", p, omega, g_all, range(m), 2.0, tol, labels)
+                elif ev == "smd_full":
+                    r = smd_full(p, phi, omega[p], st.Gv, st.h, context(), y=y)
+                    if st.Gv_check is not None:  # STEP sensitivity through the modal proxy over computed modes
+                        S = np.arange(m)
+                        a = smd_modal(p, omega, g_all, st.h, S, tol=tol)
+                        b = smd_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol)
+                        r.T_error = _t_error(a.T, b.T)
+                elif ev == "md_full":
+                    tw = Phi[:, twins] if twins else None
+                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, g=g_all, tol=tol)
+                    r.flags += _resonance_flags("md", p, omega, g_all,
+                                                [s for s in range(m) if s not in twins], 1.0, tol, labels)
+                    if st.Gv_check is not None and np.isfinite(r.T):
+                        S = np.array([s for s in range(m) if s not in twins])
+                        a = md_modal(p, omega, g_all, st.h, S, tol=tol)
+                        b = md_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol)
+                        r.T_error = _t_error(a.T, b.T)
+                else:  # pragma: no cover - resolve_methods only yields the above
+                    raise KeyError(ev)
+                r.method = name
+                if ev in MODAL_METHODS:
+                    r.retained_modes = len(retained_set(p, scene.retained_modes, m))
+                if r.T_error is not None and r.T_error > scene.step.tolerance:
+                    r.flags.append({"kind": "step_accuracy", "value": float(r.T_error),
+                                    "message": f"T changes by {r.T_error:.2e} (relative) between the two "
+                                               f"STEP amplitudes; tolerance {scene.step.tolerance:.1e}"})
+                if scales is not None:
+                    r.gamma = scales.gamma(r.T, w_max)
+                rec.methods[name] = r
+            modes.append(rec)
+            arrays[f"Gv_{p}"] = st.Gv if st is not None else np.zeros(0)
+    arrays["phi_masters"] = Phi[:, masters]
+    X = adapter.dof_coordinates()
+    if X is not None:
+        arrays["dof_coordinates"] = np.asarray(X, dtype=float)
+    if dirs is not None:
+        arrays["dof_directions"] = np.asarray(dirs)
+    spectrum = {"omega": omega.tolist(), "labels": labels, "n_rigid": int(basis.rigid.shape[1]),
+                "rigid_eigenvalues": basis.rigid_eigenvalues.tolist(),
+                "degenerate_groups": basis.degenerate_groups, "eigensolver": basis.solver,
+                "linear_solver": backend}
+    if scales is not None:
+        spectrum["omega_bar"] = [scales.omega_bar(w) for w in omega]
+    return RunResult(scene=_scene_summary(scene, methods), modes=modes, counts=counters.to_dict(),
+                     timings={}, spectrum=spectrum, model=adapter.describe(),
+                     kappa=scales.kappa if scales else None, flags=run_flags, arrays=arrays)

@@ -1,0 +1,124 @@
+"""Discovery of solver adapters through the entry-point group ``stepnf.solvers``.
+
+Modelled on xarray's backend plugins: entry points are read once and cached; a
+plugin that fails to load, is not an adapter, or repeats a name is a warning,
+never a crash; an unknown name raises :class:`stepnf.errors.UnknownSolverError`
+listing the installed ones.
+
+A third party registers an adapter with, in its ``pyproject.toml``::
+
+    [project.entry-points."stepnf.solvers"]
+    mysolver = "my_package.adapter:MySolverAdapter"
+"""
+from __future__ import annotations
+
+import functools
+import warnings
+from dataclasses import dataclass
+from importlib.metadata import EntryPoint, entry_points
+from typing import Iterable
+
+from .adapter import SolverAdapter, implements_forces
+from .errors import UnknownSolverError
+from .modal_model import ModalModel
+
+GROUP = "stepnf.solvers"
+
+
+class PluginWarning(UserWarning):
+    """A plugin under ``stepnf.solvers`` is broken or duplicated."""
+
+
+@dataclass(frozen=True)
+class SolverInfo:
+    """One installed adapter: its name, class, distribution and capabilities."""
+
+    name: str
+    cls: type
+    distribution: str
+    version: str
+
+    @property
+    def kind(self) -> str:
+        return "modal model" if issubclass(self.cls, ModalModel) else "FE adapter"
+
+    @property
+    def capabilities(self) -> list[str]:
+        if issubclass(self.cls, ModalModel):
+            return ["modal coefficients"]
+        caps = ["forces (batch)" if self.cls.prefers_batches else "forces"]
+        for flag, text in (
+            ("provides_eigenmodes", "eigenmodes"),
+            ("provides_shifted_solves", "shifted solves"),
+            ("provides_intrusive_tensors", "intrusive tensors"),
+        ):
+            if getattr(self.cls, flag, False):
+                caps.append(text)
+        return caps
+
+
+def _dist_of(ep: EntryPoint) -> tuple[str, str]:
+    dist = getattr(ep, "dist", None)
+    if dist is None:
+        return "?", "?"
+    return dist.metadata["Name"] or "?", dist.version or "?"
+
+
+def build_registry(eps: Iterable[EntryPoint]) -> dict[str, SolverInfo]:
+    """Load entry points into a name -> :class:`SolverInfo` mapping, warning on bad ones."""
+    found: dict[str, SolverInfo] = {}
+    for ep in eps:
+        dist, version = _dist_of(ep)
+        if ep.name in found:
+            if found[ep.name].cls.__module__ + ":" + found[ep.name].cls.__qualname__ == ep.value:
+                continue  # the same plugin seen twice (e.g. an editable install): harmless
+            warnings.warn(
+                f"stepnf solver plugin {ep.name!r} from {dist} ({ep.value}) duplicates the one from "
+                f"{found[ep.name].distribution}; keeping the first",
+                PluginWarning,
+                stacklevel=2,
+            )
+            continue
+        try:
+            cls = ep.load()
+        except Exception as exc:  # a broken plugin must not break stepnf
+            warnings.warn(
+                f"stepnf solver plugin {ep.name!r} ({ep.value}) from {dist} failed to load: "
+                f"{type(exc).__name__}: {exc}",
+                PluginWarning,
+                stacklevel=2,
+            )
+            continue
+        ok = isinstance(cls, type) and (
+            (issubclass(cls, SolverAdapter) and implements_forces(cls)) or issubclass(cls, ModalModel)
+        )
+        if not ok:
+            warnings.warn(
+                f"stepnf solver plugin {ep.name!r} ({ep.value}) is not a SolverAdapter implementing "
+                "_internal_force or _internal_forces, nor a ModalModel; ignored",
+                PluginWarning,
+                stacklevel=2,
+            )
+            continue
+        found[ep.name] = SolverInfo(ep.name, cls, dist, version)
+    return found
+
+
+@functools.lru_cache(maxsize=1)
+def _installed() -> dict[str, SolverInfo]:
+    return build_registry(entry_points(group=GROUP))
+
+
+def installed_solvers(refresh: bool = False) -> dict[str, SolverInfo]:
+    """Installed adapters by name (cached; ``refresh=True`` rereads the entry points)."""
+    if refresh:
+        _installed.cache_clear()
+    return dict(_installed())
+
+
+def get_solver(name: str) -> type:
+    """The adapter class registered as ``name``; raises ``UnknownSolverError`` listing the installed ones."""
+    solvers = installed_solvers()
+    if name not in solvers:
+        raise UnknownSolverError(name, solvers)
+    return solvers[name].cls

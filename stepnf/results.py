@@ -1,0 +1,197 @@
+"""Results of a run: per-mode records, the JSON document and the HDF5 file.
+
+The JSON document (``stepnf run --json``) holds at least ``modes`` (each with
+``index``, ``label``, ``omega``, ``rho`` and ``methods``: ``nf``/``dnf``/``md``/
+``smd`` -> ``{T, C, flags, ...}``) and ``counts`` (``force_evaluations``,
+``linear_solves``, ``factorizations``). The HDF5 file is written to a
+temporary name in the same folder and renamed into place, so a crash never
+leaves a half-written file and never destroys the previous one.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .backbone import MethodResult, json_float
+
+
+@dataclass
+class ModeResult:
+    """One master mode: index among the elastic modes, label, frequency, slow/fast ratio, methods."""
+
+    index: int
+    label: Any
+    omega: float
+    rho: float | None
+    rho_mode: int | None = None
+    omega_bar: float | None = None
+    w_max: float | None = None
+    methods: dict[str, MethodResult] = field(default_factory=dict)
+    step: dict[str, Any] = field(default_factory=dict)
+    flags: list[dict] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "index": self.index,
+            "label": label_json(self.label),
+            "omega": json_float(self.omega),
+            "omega_bar": json_float(self.omega_bar),
+            "rho": json_float(self.rho),
+            "rho_mode": self.rho_mode,
+            "w_max": json_float(self.w_max),
+            "step": {k: json_float(v) if isinstance(v, float) else v for k, v in self.step.items()},
+            "flags": self.flags,
+            "methods": {k: v.to_dict() for k, v in self.methods.items()},
+        }
+
+
+def label_json(label: Any) -> Any:
+    """Labels as JSON: (k, n) tuples become [k, n]; strings stay; None is null."""
+    if label is None:
+        return None
+    if isinstance(label, (tuple, list)):
+        return [int(x) if isinstance(x, (int, np.integer)) else x for x in label]
+    return str(label)
+
+
+def label_text(label: Any) -> str:
+    if label is None:
+        return "-"
+    if isinstance(label, (tuple, list)):
+        return "(" + ",".join(str(x) for x in label) + ")"
+    return str(label)
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced."""
+
+    scene: dict[str, Any]
+    modes: list[ModeResult]
+    counts: dict[str, int]
+    timings: dict[str, float]
+    spectrum: dict[str, Any]
+    model: dict[str, Any] = field(default_factory=dict)
+    kappa: float | None = None
+    flags: list[dict] = field(default_factory=list)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    hdf5_path: str | None = None
+    extra_files: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "stepnf_version": versions()["stepnf"],
+            "scene": self.scene,
+            "model": self.model,
+            "kappa": json_float(self.kappa),
+            "modes": [m.to_dict() for m in self.modes],
+            "counts": self.counts,
+            "timings": {k: round(v, 6) for k, v in self.timings.items()},
+            "spectrum": self.spectrum,
+            "flags": self.flags,
+            "hdf5": self.hdf5_path,
+            "files": self.extra_files,
+        }
+
+    def to_json(self, **kw: Any) -> str:
+        return json.dumps(self.to_dict(), allow_nan=False, **kw)
+
+
+def versions() -> dict[str, str]:
+    """Versions of stepnf and its numerical stack (stored with every result)."""
+    import h5py
+    import scipy
+
+    from . import __version__
+
+    return {"stepnf": __version__, "python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "h5py": h5py.__version__, "platform": platform.platform()}
+
+
+def _put(group, name: str, value: Any) -> None:
+    if value is None:
+        return
+    if isinstance(value, (dict, list, tuple)) and not (isinstance(value, (list, tuple)) and value
+                                                       and all(isinstance(v, (int, float)) for v in value)):
+        group.attrs[name] = json.dumps(value, default=str)
+    elif isinstance(value, str):
+        group.attrs[name] = value
+    else:
+        group.attrs[name] = np.asarray(value, dtype=float) if not isinstance(value, (int, np.integer)) else value
+
+
+def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Path:
+    """Write the run atomically (temporary file in the same folder, then ``os.replace``)."""
+    import h5py
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = "stepnf-run"
+            f.attrs["format_version"] = 1
+            f.attrs["versions"] = json.dumps(versions())
+            f.attrs["json"] = result.to_json()
+            inp = f.create_group("inputs")
+            inp.attrs["scene_text"] = scene_text
+            inp.attrs["scene"] = json.dumps(result.scene, default=str)
+            inp.attrs["model"] = json.dumps(result.model, default=str)
+            f.create_group("counts").attrs.update({k: int(v) for k, v in result.counts.items()})
+            f.create_group("timings").attrs.update({k: float(v) for k, v in result.timings.items()})
+            sp = f.create_group("spectrum")
+            sp["omega"] = np.asarray(result.spectrum.get("omega", []), dtype=float)
+            sp.attrs["labels"] = json.dumps([label_json(x) for x in result.spectrum.get("labels", [])])
+            sp.attrs["n_rigid"] = int(result.spectrum.get("n_rigid", 0))
+            sp.attrs["degenerate_groups"] = json.dumps(result.spectrum.get("degenerate_groups", []))
+            modes = f.create_group("modes")
+            for m in result.modes:
+                g = modes.create_group(f"mode_{m.index}")
+                g.attrs["index"] = m.index
+                g.attrs["label"] = json.dumps(label_json(m.label))
+                g.attrs["omega"] = m.omega
+                if m.rho is not None and np.isfinite(m.rho):
+                    g.attrs["rho"] = m.rho
+                for meth, r in m.methods.items():
+                    mg = g.create_group(meth)
+                    mg["C"] = np.asarray(r.C, dtype=float)
+                    mg.attrs["T"] = r.T
+                    mg.attrs["order"] = r.order
+                    if r.gamma is not None:
+                        mg.attrs["gamma"] = r.gamma
+                    if r.T_error is not None:
+                        mg.attrs["T_error"] = r.T_error
+                    mg.attrs["flags"] = json.dumps(r.flags)
+            arr = f.create_group("arrays")
+            for k, v in result.arrays.items():
+                arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def read_hdf5(path: str | Path) -> dict[str, Any]:
+    """The JSON document stored in a run's HDF5 file (plus its arrays under ``"arrays"``)."""
+    import h5py
+
+    path = Path(path)
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != "stepnf-run":
+                raise ValueError(f"{path}: not a stepnf run file (format attribute missing)")
+            doc = json.loads(f.attrs["json"])
+            doc["arrays"] = {k: np.asarray(v) for k, v in f["arrays"].items()}
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the HDF5 file (corrupt or truncated?): {exc}") from exc
+    return doc

@@ -1,0 +1,286 @@
+"""STEP (Muravyov & Rizzi 2003): quadratic and cubic stiffness from prescribed displacements.
+
+For a cubic internal force ``f(x) = K x + G(x, x) + H(x, x, x)`` and a field
+``q phi``::
+
+    f(+q phi) + f(-q phi) = 2 q^2 G(phi, phi)
+    f(+q phi) - f(-q phi) = 2 q K phi + 2 q^3 H(phi, phi, phi)
+
+*Targeted plan* (:func:`targeted_step`): two evaluations per master mode give
+the whole vector ``G(phi_p, phi_p)`` (hence every ``g^s_pp``) and ``h^p_ppp``;
+two more at a second amplitude give the error estimate.
+
+*Full plan* (:func:`full_step`): Muravyov's combinations ``+-phi_j``,
+``+-(phi_j + phi_k)``, ``phi_j - phi_k`` and ``phi_j + phi_k + phi_l`` give every
+``g^p_jk`` and ``h^p_jkl`` of n retained modes in
+``2n + 3n(n-1)/2 + n(n-1)(n-2)/6`` evaluations (+ ``2n`` for the check).
+
+Amplitudes: ``q`` is chosen so that the largest translational displacement of
+``q phi`` equals ``relative_amplitude`` times the model's characteristic length
+(a shell's thickness), unless the scene gives ``amplitude`` (model length
+units). For an exact cubic f, larger amplitudes only reduce round-off; for a
+solver whose f is not an exact cubic, or prints few digits, the check at
+``check_ratio * q`` measures what the amplitude costs.
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from .counters import Counters
+from .errors import NumericalError, StepnfError
+
+ForceFunction = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class StepPolicy:
+    """How STEP amplitudes are chosen and checked (scene table ``[analysis.step]``)."""
+
+    amplitude: float | None = None
+    relative_amplitude: float = 0.5
+    check_ratio: float = 0.5
+    check: bool = True
+    tolerance: float = 1e-4
+
+
+class ForceEvaluator:
+    """Sends displacement fields to an adapter (in batches) and counts them."""
+
+    def __init__(self, forces: ForceFunction, n: int, counters: Counters, batch_size: int = 256):
+        self._forces = forces
+        self.n = n
+        self.counters = counters
+        self.batch_size = max(1, int(batch_size))
+
+    def __call__(self, U: np.ndarray) -> np.ndarray:
+        U = np.atleast_2d(np.asarray(U, dtype=float))
+        out = []
+        for i in range(0, len(U), self.batch_size):
+            chunk = U[i:i + self.batch_size]
+            out.append(np.asarray(self._forces(chunk), dtype=float))
+            self.counters.force_evaluations += len(chunk)
+            self.counters.solver_runs += 1
+        return np.concatenate(out, axis=0) if out else np.zeros((0, self.n))
+
+
+def step_amplitude(phi: np.ndarray, policy: StepPolicy, length: float | None,
+                   mask: np.ndarray | None = None) -> float:
+    """Scale ``q`` of the field ``q phi`` sent to the solver (see module docstring)."""
+    v = np.abs(phi if mask is None or not mask.any() else phi[mask])
+    peak = float(v.max()) if v.size else 0.0
+    if not peak > 0:
+        raise NumericalError("cannot choose a STEP amplitude for a zero mode shape")
+    target = policy.amplitude if policy.amplitude is not None else policy.relative_amplitude * (length or 1.0)
+    if not target > 0 or not np.isfinite(target):
+        raise StepnfError(f"STEP amplitude must be a positive length, got {target!r}")
+    return target / peak
+
+
+@dataclass
+class MasterStep:
+    """Targeted STEP result for one master mode (vectors in the solver's dof ordering).
+
+    ``Gv = G(phi_p, phi_p)`` (n,), ``h = phi_p^T H(phi_p, phi_p, phi_p)`` at the
+    amplitude ``q``; the ``*_check`` values at ``q_check``; ``error_G`` and
+    ``error_h`` the relative differences (scaled as described in
+    :func:`targeted_step`).
+    """
+
+    p: int
+    q: float
+    Gv: np.ndarray
+    h: float
+    q_check: float | None = None
+    Gv_check: np.ndarray | None = None
+    h_check: float | None = None
+    error_G: float = 0.0
+    error_h: float = 0.0
+    flags: list[dict] = field(default_factory=list)
+
+
+def _gh_from_pair(fp: np.ndarray, fm: np.ndarray, Kphi: np.ndarray, phi: np.ndarray, q: float):
+    Gv = (fp + fm) / (2.0 * q * q)
+    Hv = (fp - fm - 2.0 * q * Kphi) / (2.0 * q ** 3)
+    return Gv, float(phi @ Hv)
+
+
+def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: float,
+                  policy: StepPolicy, p: int = 0) -> MasterStep:
+    """``G(phi, phi)`` and ``h = phi^T H(phi, phi, phi)`` from two (four with the check) evaluations.
+
+    Error estimates are relative to the size of the nonlinear forces at the
+    STEP amplitude, so they stay meaningful when G vanishes by symmetry:
+    ``error_G = q ||dGv|| / ||K phi||`` and ``error_h = q^2 |dh| / (phi^T K phi)``,
+    where d is the difference between the two amplitudes.
+    """
+    return targeted_steps(forces, K, phi[:, None], np.asarray([q]), policy, [p])[0]
+
+
+def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.ndarray,
+                   policy: StepPolicy, modes: list[int] | None = None) -> list[MasterStep]:
+    """:func:`targeted_step` for several master modes (columns of ``Phi``) in ONE batch of fields.
+
+    An external solver then runs once for the whole plan.
+    """
+    k = Phi.shape[1]
+    modes = list(range(k)) if modes is None else list(modes)
+    per = 4 if policy.check else 2
+    fields = []
+    for j in range(k):
+        phi, qj = Phi[:, j], float(q[j])
+        fields += [qj * phi, -qj * phi]
+        if policy.check:
+            q2 = policy.check_ratio * qj
+            fields += [q2 * phi, -q2 * phi]
+    F = forces(np.stack(fields))
+    out = []
+    for j in range(k):
+        phi, qj, p = Phi[:, j], float(q[j]), modes[j]
+        Kphi = K @ phi
+        Fj = F[per * j: per * (j + 1)]
+        Gv, h = _gh_from_pair(Fj[0], Fj[1], Kphi, phi, qj)
+        res = MasterStep(p=p, q=qj, Gv=Gv, h=h)
+        if policy.check:
+            q2 = policy.check_ratio * qj
+            Gv2, h2 = _gh_from_pair(Fj[2], Fj[3], Kphi, phi, q2)
+            lin = max(float(np.linalg.norm(Kphi)), 1e-300)
+            w2 = max(float(phi @ Kphi), 1e-300)
+            res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
+            res.error_G = qj * float(np.linalg.norm(Gv - Gv2)) / lin
+            res.error_h = qj * qj * abs(h - h2) / w2
+            for name, err in (("G", res.error_G), ("h", res.error_h)):
+                if not np.isfinite(err) or err > policy.tolerance:
+                    res.flags.append({
+                        "kind": "step_accuracy",
+                        "message": f"STEP {name} of mode {p} changes by {err:.2e} (relative) between "
+                                   f"amplitudes {qj:.3e} and {q2:.3e}; tolerance {policy.tolerance:.1e}",
+                        "mode": p, "value": float(err),
+                    })
+        out.append(res)
+    return out
+
+
+def n_full_step_evaluations(n: int) -> int:
+    """Force evaluations of the full Muravyov-Rizzi plan for ``n`` modes (no check)."""
+    return 2 * n + 3 * n * (n - 1) // 2 + n * (n - 1) * (n - 2) // 6
+
+
+@dataclass
+class FullStep:
+    """All modal coefficients of ``n`` retained modes.
+
+    ``g[p, j, k] = phi_p^T G(phi_j, phi_k)``, ``h[p, j, k, l] = phi_p^T H(phi_j, phi_k, phi_l)``
+    (symmetric in the lower indices); ``error`` the largest scaled change of
+    the diagonal terms between the two amplitudes.
+    """
+
+    modes: np.ndarray
+    q: np.ndarray
+    g: np.ndarray
+    h: np.ndarray
+    error: float = 0.0
+    flags: list[dict] = field(default_factory=list)
+
+
+def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.ndarray,
+              policy: StepPolicy, modes: np.ndarray | None = None,
+              progress: Callable[[int, int], None] | None = None) -> FullStep:
+    """Full STEP plan on the columns of ``Phi`` (n_dof, n) with per-mode amplitudes ``q`` (n,).
+
+    The combinations use scaled modes ``v_j = q_j phi_j``; every force is
+    projected on the modes at once, so memory stays O(n^3) whatever the
+    model size.
+    """
+    n = Phi.shape[1]
+    V = Phi * q  # scaled modes
+    KV = K @ V
+    proj = Phi.T  # (n, n_dof)
+    # field list: (+j), (-j), (j+k), -(j+k), (j-k), (j+k+l)
+    singles = [(j,) for j in range(n)]
+    pairs = list(itertools.combinations(range(n), 2))
+    triples = list(itertools.combinations(range(n), 3))
+    U_rows: list[np.ndarray] = []
+    for j in range(n):
+        U_rows += [V[:, j], -V[:, j]]
+    for j, k in pairs:
+        s, d = V[:, j] + V[:, k], V[:, j] - V[:, k]
+        U_rows += [s, -s, d]
+    for j, k, l in triples:
+        U_rows.append(V[:, j] + V[:, k] + V[:, l])
+    total = len(U_rows)
+    P = np.empty((total, n))  # projected forces minus the linear part, in modal coordinates
+    chunk = max(1, forces.batch_size)
+    for i in range(0, total, chunk):
+        Fi = forces(np.stack(U_rows[i:i + chunk]))
+        P[i:i + len(Fi)] = Fi @ proj.T
+        if progress:
+            progress(min(i + chunk, total), total)
+    del U_rows
+    KVp = (proj @ KV)  # (n, n): modal linear forces of scaled modes
+    G2 = np.zeros((n, n, n))  # projected G(v_j, v_k)
+    H3 = np.zeros((n, n, n, n))  # projected H(v_j, v_k, v_l)
+    Hjjj = np.zeros((n, n))
+    row = 0
+    for j in range(n):
+        fp, fm = P[row], P[row + 1]
+        row += 2
+        G2[:, j, j] = (fp + fm) / 2.0
+        Hjjj[:, j] = (fp - fm) / 2.0 - KVp[:, j]
+        H3[:, j, j, j] = Hjjj[:, j]
+    for j, k in pairs:
+        fs, fms, fd = P[row], P[row + 1], P[row + 2]
+        row += 3
+        # f(s)+f(-s) = 2 G(s,s) = 2 (Gjj + 2Gjk + Gkk)
+        Gjk = ((fs + fms) / 2.0 - G2[:, j, j] - G2[:, k, k]) / 2.0
+        G2[:, j, k] = G2[:, k, j] = Gjk
+        odd_s = (fs - fms) / 2.0 - KVp[:, j] - KVp[:, k]  # Hjjj + 3Hjjk + 3Hjkk + Hkkk
+        # f(d) = K d + G(d,d) + H(d,d,d);  H(d)^3 = Hjjj - 3Hjjk + 3Hjkk - Hkkk
+        odd_d = fd - (KVp[:, j] - KVp[:, k]) - (G2[:, j, j] - 2 * Gjk + G2[:, k, k])
+        a = (odd_s - Hjjj[:, j] - Hjjj[:, k]) / 3.0  # Hjjk + Hjkk
+        b = (odd_d - Hjjj[:, j] + Hjjj[:, k]) / 3.0  # -Hjjk + Hjkk
+        Hjjk, Hjkk = (a - b) / 2.0, (a + b) / 2.0
+        for idx in set(itertools.permutations((j, j, k))):
+            H3[(slice(None),) + idx] = Hjjk
+        for idx in set(itertools.permutations((j, k, k))):
+            H3[(slice(None),) + idx] = Hjkk
+    for j, k, l in triples:
+        f = P[row]
+        row += 1
+        lin_part = KVp[:, j] + KVp[:, k] + KVp[:, l]
+        quad = (G2[:, j, j] + G2[:, k, k] + G2[:, l, l]
+                + 2 * (G2[:, j, k] + G2[:, j, l] + G2[:, k, l]))
+        cub_known = (Hjjj[:, j] + Hjjj[:, k] + Hjjj[:, l]
+                     + 3 * (H3[:, j, j, k] + H3[:, j, j, l] + H3[:, k, k, j]
+                            + H3[:, k, k, l] + H3[:, l, l, j] + H3[:, l, l, k]))
+        Hjkl = (f - lin_part - quad - cub_known) / 6.0
+        for idx in itertools.permutations((j, k, l)):
+            H3[(slice(None),) + idx] = Hjkl
+    # undo the amplitude scaling: G(v_j, v_k) = q_j q_k G(phi_j, phi_k)
+    g = G2 / (q[None, :, None] * q[None, None, :])
+    h = H3 / (q[None, :, None, None] * q[None, None, :, None] * q[None, None, None, :])
+    res = FullStep(modes=np.arange(n) if modes is None else np.asarray(modes), q=q, g=g, h=h)
+    if policy.check:
+        q2 = policy.check_ratio * q
+        V2 = Phi * q2
+        U2 = np.concatenate([V2.T, -V2.T])
+        F2 = forces(U2) @ proj.T
+        KV2p = proj @ (K @ V2)
+        err = 0.0
+        w2 = np.maximum(np.abs(np.diag(KVp) / q ** 2), 1e-300)
+        for j in range(n):
+            gp = (F2[j] + F2[n + j]) / (2 * q2[j] ** 2)
+            hp = ((F2[j] - F2[n + j]) / 2 - KV2p[:, j]) / q2[j] ** 3
+            eg = q[j] * np.linalg.norm(gp - g[:, j, j]) / np.sqrt(w2[j]) / max(np.sqrt(w2[j]), 1e-300)
+            eh = q[j] ** 2 * abs(hp[j] - h[j, j, j, j]) / w2[j]
+            err = max(err, float(eg), float(eh))
+        res.error = err
+        if not np.isfinite(err) or err > policy.tolerance:
+            res.flags.append({"kind": "step_accuracy",
+                              "message": f"full STEP coefficients change by {err:.2e} between amplitudes",
+                              "value": float(err)})
+    return res

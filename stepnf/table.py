@@ -1,0 +1,61 @@
+"""The human-readable table printed by ``stepnf run``."""
+from __future__ import annotations
+
+import math
+
+from .results import RunResult, label_text
+
+
+def _num(x: float | None, fmt: str = "{:+.4e}") -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float) and math.isinf(x):
+        return "+inf" if x > 0 else "-inf"
+    return fmt.format(x)
+
+
+def format_table(res: RunResult) -> str:
+    """One row per master mode and method: T, Gamma, behaviour, rho, flags."""
+    lines = []
+    head = res.model.get("adapter") or res.model.get("model") or ""
+    kappa = f"   kappa = {res.kappa:.4g}" if res.kappa is not None else ""
+    lines.append(f"stepnf: {res.scene.get('solver')} {head}{kappa}")
+    has_gamma = any(r.gamma is not None for m in res.modes for r in m.methods.values())
+    cols = ["mode", "label", "omega", "w_bar", "rho", "method", "T", "Gamma" if has_gamma else None,
+            "behaviour", "flags"]
+    cols = [c for c in cols if c]
+    rows = []
+    for m in res.modes:
+        first = True
+        for name, r in m.methods.items():
+            flags = ", ".join(sorted({f["kind"] + (f" (mode {f['mode']})" if f.get("mode") is not None else "")
+                                      for f in r.flags + (m.flags if first else [])}))
+            row = [str(m.index) if first else "", label_text(m.label) if first else "",
+                   _num(m.omega, "{:.6g}") if first else "",
+                   _num(m.omega_bar, "{:.4f}") if first else "",
+                   _num(m.rho, "{:.3f}") if first else "", name, _num(r.T)]
+            if has_gamma:
+                row.append(_num(r.gamma, "{:+.4f}"))
+            row += [r.behaviour, flags or "-"]
+            rows.append(row)
+            first = False
+    widths = [max(len(c), *(len(r[i]) for r in rows)) if rows else len(c) for i, c in enumerate(cols)]
+    lines.append("  ".join(c.ljust(w) for c, w in zip(cols, widths)))
+    lines.append("  ".join("-" * w for w in widths))
+    lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)) for r in rows]
+    c = res.counts
+    lines.append(f"counts: {c.get('force_evaluations', 0)} force evaluations, {c.get('linear_solves', 0)} "
+                 f"linear solves, {c.get('factorizations', 0)} factorizations"
+                 f"; total {res.timings.get('total', 0.0):.2f} s")
+    for f in res.flags:
+        lines.append(f"note: {f['message']}")
+    for m in res.modes:
+        for r in m.methods.values():
+            for f in r.flags:
+                if f.get("kind", "").startswith("internal_resonance") or f.get("kind") == "step_accuracy":
+                    lines.append(f"flag [{m.index} {r.method}]: {f['message']}")
+    if res.hdf5_path:
+        lines.append(f"results: {res.hdf5_path}")
+    for p in res.extra_files:
+        lines.append(f"figure: {p}")
+    return "\n".join(lines)

@@ -1,0 +1,71 @@
+"""Polynomial test systems built from a potential (fully symmetric G and H)."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+
+def full_symmetrize(T: np.ndarray) -> np.ndarray:
+    perms = list(itertools.permutations(range(T.ndim)))
+    return sum(np.transpose(T, p) for p in perms) / len(perms)
+
+
+def random_system(n: int, seed: int = 0, *, rigid: int = 0, spread: float = 1.0):
+    """(M, K, G, H) with SPD M, K of rank n - rigid, and G, H from a potential.
+
+    With ``rigid`` > 0 the nonlinear terms are built in the elastic subspace
+    only (as for a real free structure, forces are self-equilibrated).
+    """
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((n, n))
+    M = A @ A.T / n + np.eye(n)
+    # K = M V diag(lam) V^T M with M-orthonormal V
+    L = np.linalg.cholesky(M)
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    V = np.linalg.solve(L.T, Q)  # V^T M V = I
+    lam = np.sort(rng.uniform(1.0, 10.0 * spread, n))
+    lam[:rigid] = 0.0
+    Minv_VT = M @ V  # rows of V^T M
+    K = Minv_VT @ np.diag(lam) @ Minv_VT.T
+    K = (K + K.T) / 2
+    G = full_symmetrize(rng.standard_normal((n, n, n)))
+    H = full_symmetrize(rng.standard_normal((n, n, n, n)))
+    H = H + 3 * full_symmetrize(np.einsum("ij,kl->ijkl", np.eye(n), np.eye(n)))  # keep the cubic stiffening
+    if rigid:
+        E = Minv_VT[:, rigid:]  # projector onto elastic coordinates: P = V_e (M V_e)^T
+        P = V[:, rigid:] @ E.T  # u -> elastic part
+        G = np.einsum("ai,bj,ck,abc->ijk", P, P, P, G)
+        H = np.einsum("ai,bj,ck,dl,abcd->ijkl", P, P, P, P, H)
+    return M, K, G, H
+
+
+def modal_to_physical(omega, g, h, seed: int = 0, *, rigid: int = 0):
+    """Physical (M, K, G, H) whose mass-normalised modes have the given modal tensors.
+
+    ``omega`` (m,) elastic frequencies, ``g`` (m, m, m) and ``h`` (m, m, m, m)
+    fully symmetric modal tensors (``g[s, i, j] = phi_s^T G(phi_i, phi_j)``).
+    With ``x`` the modal coordinates and ``u = P x`` (``P`` random,
+    well-conditioned), ``M = P^-T P^-1``, ``K = P^-T diag(0_rigid, omega^2) P^-1``
+    and the tensors transform covariantly, so mode ``s`` of the physical
+    system is ``P e_s`` (up to sign) and its modal tensors are ``g``, ``h``.
+    ``rigid`` zero-frequency modes are put first; they do not enter G or H
+    (self-equilibrated nonlinear forces).
+    """
+    omega = np.asarray(omega, dtype=float)
+    m = len(omega)
+    n = m + rigid
+    rng = np.random.default_rng(seed)
+    Qo, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    P = Qo @ np.diag(rng.uniform(0.5, 2.0, n))  # condition number <= 4
+    Q = np.linalg.inv(P)
+    lam = np.concatenate([np.zeros(rigid), omega ** 2])
+    M = Q.T @ Q
+    K = Q.T @ np.diag(lam) @ Q
+    gf = np.zeros((n, n, n))
+    gf[rigid:, rigid:, rigid:] = g
+    hf = np.zeros((n, n, n, n))
+    hf[rigid:, rigid:, rigid:, rigid:] = h
+    G = np.einsum("sa,sij,ib,jc->abc", Q, gf, Q, Q)
+    H = np.einsum("sa,sijk,ib,jc,kd->abcd", Q, hf, Q, Q, Q)
+    return (M + M.T) / 2, (K + K.T) / 2, G, H
