@@ -17,6 +17,7 @@ import scipy.sparse as sp
 
 from .adapter import SolverAdapter
 from .backbone import MethodResult
+from .checkpoint import Checkpoint
 from .counters import Counters
 from .errors import SceneError
 from .evaluators import (FullOrderContext, Tolerances, _resonance_flags, coupled, dnf, md_full, md_modal,
@@ -122,6 +123,7 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
     """Compute what ``scene`` asks for and return (and, with ``write``, store) the results."""
     progress = progress or Progress(enabled=False)
     cls = get_solver(scene.solver)
+    checkpoint = None
     t_start = time.perf_counter()
     if issubclass(cls, ModalModel):
         with progress.stage("model", f"building the {scene.solver} model"):
@@ -133,16 +135,23 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
     else:
         with progress.stage("model", f"setting up the {scene.solver} model"):
             adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        if write and scene.write_hdf5:
+            checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
         try:
-            result = _run_adapter(scene, adapter, progress)
+            result = _run_adapter(scene, adapter, progress, checkpoint)
         finally:
             adapter.close()
+        if checkpoint is not None and checkpoint.reused:
+            result.counters_note = f"{checkpoint.reused} force evaluations reused from an interrupted run"
+            progress.message(result.counters_note)
     result.timings.update(progress.timings)
     result.timings["total"] = time.perf_counter() - t_start
     if write and scene.write_hdf5:
         path = scene.output_dir / f"{scene.output_name}.h5"
         write_hdf5(result, path, scene.text)
         result.hdf5_path = str(path)
+        if checkpoint is not None:
+            checkpoint.discard()
     return result
 
 
@@ -195,7 +204,8 @@ def _run_modal_model(scene: Scene, model: ModalModel, progress: Progress) -> Run
                      model=model.describe(), kappa=scales.kappa if scales else None)
 
 
-def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress) -> RunResult:
+def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
+                 checkpoint: Checkpoint | None = None) -> RunResult:
     counters = Counters()
     tol = scene.tolerances
     methods = resolve_methods(scene.methods, scene.qm_order or "full")
@@ -257,7 +267,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress) -> Ru
         mask = np.asarray(dirs) < 3
     length = adapter.characteristic_length()
     forces = ForceEvaluator(adapter.internal_forces, n, counters,
-                            batch_size=1 << 30 if adapter.prefers_batches else 64)
+                            batch_size=1024 if adapter.prefers_batches else 64, checkpoint=checkpoint)
     need_targeted = bool(evaluators & FULL_METHODS) or (bool(evaluators & MODAL_METHODS) and scene.tensors != "full")
     steps = {}
     if need_targeted:
@@ -377,6 +387,8 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress) -> Ru
                 "linear_solver": backend}
     if scales is not None:
         spectrum["omega_bar"] = [scales.omega_bar(w) for w in omega]
-    return RunResult(scene=_scene_summary(scene, methods), modes=modes, counts=counters.to_dict(),
+    counts = counters.to_dict()
+    counts["force_evaluations_reused"] = checkpoint.reused if checkpoint is not None else 0
+    return RunResult(scene=_scene_summary(scene, methods), modes=modes, counts=counts,
                      timings={}, spectrum=spectrum, model=adapter.describe(),
                      kappa=scales.kappa if scales else None, flags=run_flags, arrays=arrays)

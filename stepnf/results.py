@@ -84,6 +84,7 @@ class RunResult:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
     hdf5_path: str | None = None
     extra_files: list[str] = field(default_factory=list)
+    counters_note: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {

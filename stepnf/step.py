@@ -31,6 +31,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
+from .checkpoint import Checkpoint
 from .counters import Counters
 from .errors import NumericalError, StepnfError
 
@@ -49,23 +50,42 @@ class StepPolicy:
 
 
 class ForceEvaluator:
-    """Sends displacement fields to an adapter (in batches) and counts them."""
+    """Sends displacement fields to an adapter (in chunks of ``batch_size``) and counts them.
 
-    def __init__(self, forces: ForceFunction, n: int, counters: Counters, batch_size: int = 256):
+    With a :class:`stepnf.checkpoint.Checkpoint`, every chunk of a named plan
+    is stored as soon as it is computed and reused by a rerun that asks for
+    the same fields (``reduce`` maps the forces to what is kept, e.g. their
+    modal projection).
+    """
+
+    def __init__(self, forces: ForceFunction, n: int, counters: Counters, batch_size: int = 256,
+                 checkpoint: "Checkpoint | None" = None):
         self._forces = forces
         self.n = n
         self.counters = counters
         self.batch_size = max(1, int(batch_size))
+        self.checkpoint = checkpoint
 
-    def __call__(self, U: np.ndarray) -> np.ndarray:
+    def __call__(self, U: np.ndarray, *, plan: str | None = None,
+                 reduce: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
         U = np.atleast_2d(np.asarray(U, dtype=float))
         out = []
-        for i in range(0, len(U), self.batch_size):
-            chunk = U[i:i + self.batch_size]
-            out.append(np.asarray(self._forces(chunk), dtype=float))
-            self.counters.force_evaluations += len(chunk)
-            self.counters.solver_runs += 1
-        return np.concatenate(out, axis=0) if out else np.zeros((0, self.n))
+        for i, start in enumerate(range(0, len(U), self.batch_size)):
+            chunk = U[start:start + self.batch_size]
+            cp = self.checkpoint if plan is not None else None
+            res = cp.load(plan, i, chunk) if cp is not None else None
+            if res is None:
+                res = np.asarray(self._forces(chunk), dtype=float)
+                self.counters.force_evaluations += len(chunk)
+                self.counters.solver_runs += 1
+                if reduce is not None:
+                    res = reduce(res)
+                if cp is not None:
+                    cp.store(plan, i, chunk, res)
+            out.append(res)
+        if out:
+            return np.concatenate(out, axis=0)
+        return np.zeros((0, self.n)) if reduce is None else reduce(np.zeros((0, self.n)))
 
 
 def step_amplitude(phi: np.ndarray, policy: StepPolicy, length: float | None,
@@ -137,7 +157,7 @@ def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: n
         if policy.check:
             q2 = policy.check_ratio * qj
             fields += [q2 * phi, -q2 * phi]
-    F = forces(np.stack(fields))
+    F = forces(np.stack(fields), plan="targeted")
     out = []
     for j in range(k):
         phi, qj, p = Phi[:, j], float(q[j]), modes[j]
@@ -213,11 +233,11 @@ def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.nda
     for j, k, l in triples:
         U_rows.append(V[:, j] + V[:, k] + V[:, l])
     total = len(U_rows)
-    P = np.empty((total, n))  # projected forces minus the linear part, in modal coordinates
+    P = np.empty((total, n))  # forces projected on the modes
     chunk = max(1, forces.batch_size)
-    for i in range(0, total, chunk):
-        Fi = forces(np.stack(U_rows[i:i + chunk]))
-        P[i:i + len(Fi)] = Fi @ proj.T
+    for i in range(0, total, chunk):  # a plan of its own per block, so progress can be shown
+        P[i:i + chunk] = forces(np.stack(U_rows[i:i + chunk]), plan=f"full{i // chunk:05d}",
+                                reduce=lambda F: F @ proj.T)
         if progress:
             progress(min(i + chunk, total), total)
     del U_rows
@@ -268,7 +288,7 @@ def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.nda
         q2 = policy.check_ratio * q
         V2 = Phi * q2
         U2 = np.concatenate([V2.T, -V2.T])
-        F2 = forces(U2) @ proj.T
+        F2 = forces(U2, plan="fullcheck", reduce=lambda F: F @ proj.T)
         KV2p = proj @ (K @ V2)
         err = 0.0
         w2 = np.maximum(np.abs(np.diag(KVp) / q ** 2), 1e-300)
