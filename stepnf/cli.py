@@ -1,7 +1,7 @@
 """Command-line interface: ``stepnf run SCENE``, ``stepnf solvers``.
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
-solver or numerical failure; 1 anything unexpected.
+solver or numerical failure; 4 a sweep with failed cases; 1 anything unexpected.
 """
 from __future__ import annotations
 
@@ -62,6 +62,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .sweep import load_sweep, run_sweep
+
+    sweep = load_sweep(args.file)
+    say = (lambda s: None) if args.quiet else (lambda s: print(f"[stepnf] {s}", file=sys.stderr, flush=True))
+    rep = run_sweep(sweep, scheduler=args.scheduler, n_workers=args.workers, retry_failed=args.retry_failed,
+                    progress=say)
+    from .sweep import read_store
+
+    failed = sorted(cid for cid, rec in read_store(sweep.store).items() if rec.get("status") != "done")
+    print(f"sweep {sweep.name}: {len(rep.done) + len(rep.failed)} cases run ({len(rep.done)} done, "
+          f"{len(rep.failed)} failed), {len(rep.skipped)} already stored; store {sweep.store}")
+    if failed:
+        print(f"failed cases in the store: {failed} (rerun with --retry-failed)")
+    return 0 if not failed else 4
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -74,6 +91,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_run.add_argument("--no-hdf5", action="store_true", help="do not write the HDF5 file")
     p_run.add_argument("--no-plot", action="store_true", help="do not draw figures")
     p_run.set_defaults(func=_cmd_run)
+    p_sw = sub.add_parser("sweep", help="run every case of a sweep file on Dask (resumable)")
+    p_sw.add_argument("file", help="sweep file (TOML)")
+    p_sw.add_argument("--scheduler", help="address of an existing dask.distributed scheduler")
+    p_sw.add_argument("--workers", type=int, help="local cluster size")
+    p_sw.add_argument("--retry-failed", action="store_true", help="run again the cases stored as failed")
+    p_sw.add_argument("--quiet", "-q", action="store_true")
+    p_sw.set_defaults(func=_cmd_sweep)
     p_sol = sub.add_parser("solvers", help="list the installed solver adapters")
     p_sol.set_defaults(func=_cmd_solvers)
     args = parser.parse_args(argv)

@@ -1,0 +1,122 @@
+"""Sweeps on a local Dask cluster: killed part-way, resumed, every case stored exactly once."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from stepnf.errors import SceneError
+from stepnf.sweep import load_sweep, read_store, run_case
+
+PLUGIN = textwrap.dedent('''
+    import time
+    import numpy as np
+    from stepnf.modal_model import ModalModel
+    from stepnf.shell import ShellScales
+
+    class Slow(ModalModel):
+        """Two-mode model whose coupling grows with kappa; sleeps to make the sweep killable."""
+        def __init__(self, kappa, delay=0.0):
+            if kappa == 3:
+                raise ValueError("kappa = 3 is a case that fails on purpose")
+            time.sleep(delay)
+            self.kappa = float(kappa)
+        def omegas(self):
+            return np.array([1.0, 2.5 + self.kappa])
+        def labels(self):
+            return [(0, 1), (0, 2)]
+        def quadratic_coefficients(self, p):
+            return np.array([0.1, 0.3 * np.sqrt(self.kappa)])
+        def cubic_coefficient(self, p):
+            return 0.5
+        def shell_scales(self):
+            return ShellScales(kappa=self.kappa, omega_factor=1.0, thickness=1.0)
+''')
+
+
+@pytest.fixture
+def plugin_env(tmp_path):
+    site = tmp_path / "site"
+    (site / "slowmodel-0.1.dist-info").mkdir(parents=True)
+    (site / "slowmodel.py").write_text(PLUGIN)
+    (site / "slowmodel-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: slowmodel\nVersion: 0.1\n")
+    (site / "slowmodel-0.1.dist-info" / "entry_points.txt").write_text("[stepnf.solvers]\nslow = slowmodel:Slow\n")
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(site) + os.pathsep + env.get("PYTHONPATH", "")
+    return site, env
+
+
+def write_sweep(tmp_path, delay):
+    (tmp_path / "base.toml").write_text(
+        f'[model]\nsolver = "slow"\nkappa = 1.0\ndelay = {delay}\n'
+        '[analysis]\nmaster_modes = [0]\nmethods = ["nf", "md", "smd"]\n')
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text('[sweep]\nname = "demo"\nbase = "base.toml"\n'
+                     '[sweep.vary]\n"model.kappa" = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]\n'
+                     '[sweep.dask]\nn_workers = 2\n[output]\ndir = "out"\n')
+    return sweep
+
+
+def test_sweep_killed_and_resumed(tmp_path, plugin_env):
+    site, env = plugin_env
+    sweep = write_sweep(tmp_path, delay=1.5)
+    store = tmp_path / "out" / "demo.h5"
+    cmd = [sys.executable, "-m", "stepnf", "sweep", str(sweep)]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.time() + 120
+    stored_before = {}
+    while time.time() < deadline and proc.poll() is None:
+        try:
+            stored_before = read_store(store)
+        except ValueError:
+            stored_before = {}
+        if len(stored_before) >= 2:
+            break
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)  # kill the client and its Dask workers at once
+    proc.wait()
+    assert 2 <= len(stored_before) < 6, "the sweep must be killed part-way"
+    stored_before = read_store(store)  # what survived the kill is a readable store
+    # resume (faster now): only the missing cases run
+    write_sweep(tmp_path, delay=0.0)
+    r = subprocess.run(cmd + ["--quiet"], env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 4, r.stderr  # one case fails on purpose: the sweep is not complete
+    assert f"{6 - len(stored_before)} cases run" in r.stdout
+    assert f"{len(stored_before)} already stored" in r.stdout
+    final = read_store(store)
+    assert sorted(final) == sorted(c.id for c in load_sweep(sweep).cases)  # every case exactly once
+    assert final["kappa=3"]["status"] == "failed" and "fails on purpose" in final["kappa=3"]["error"]
+    # same numbers as a serial run (the stored pre-kill cases included)
+    sys.path.insert(0, str(site))
+    try:
+        import importlib.metadata  # noqa: F401
+        from stepnf import registry
+
+        registry.installed_solvers(refresh=True)
+        for case in load_sweep(sweep).cases:
+            if case.id == "kappa=3":
+                continue
+            serial = run_case(case.data, case.file, case.base_dir)
+            got = final[case.id]["result"]
+            for m in ("nf", "md", "smd"):
+                assert got["modes"][0]["methods"][m]["T"] == serial["modes"][0]["methods"][m]["T"]
+    finally:
+        sys.path.remove(str(site))
+        registry.installed_solvers(refresh=True)
+
+
+def test_bad_sweep_file(tmp_path):
+    (tmp_path / "base.toml").write_text('[model]\nsolver = "polynomial"\nfile = "x.npz"\n'
+                                        '[analysis]\nmaster_modes = [0]\nmethods = ["nf"]\n')
+    s = tmp_path / "s.toml"
+    s.write_text('[sweep]\nbase = "base.toml"\n[sweep.vary]\n"analysis.methods" = [["nope"]]\n')
+    with pytest.raises(SceneError, match=r"case methods=\['nope'\].*allowed values"):
+        load_sweep(s)
+    s.write_text('[sweep]\nbase = "base.toml"\nworkers = 3\n')
+    with pytest.raises(SceneError, match=r"sweep.workers.*unknown key"):
+        load_sweep(s)
