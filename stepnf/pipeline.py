@@ -208,6 +208,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                  checkpoint: Checkpoint | None = None) -> RunResult:
     counters = Counters()
     tol = scene.tolerances
+    n_ret = scene.retained_modes or 10
     methods = resolve_methods(scene.methods, scene.qm_order or "full")
     evaluators = set(methods.values())
     with progress.stage("matrices", "mass and stiffness matrices"):
@@ -222,7 +223,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     int_masters = [m for m in scene.master_modes if isinstance(m, int)]
     need = max(int_masters, default=0) + 2
     if needs_modal:
-        need = max(need, scene.retained_modes)
+        need = max(need, n_ret)
     label_cache: dict[int, list] = {}
 
     def labels_of(b: ModalBasis) -> list:
@@ -256,9 +257,9 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         run_flags.append({"kind": "resonance_check_incomplete",
                           "message": f"modes computed up to w = {omega[-1]:.4g} only (max_modes = "
                                      f"{scene.max_modes}); 1:2 resonances above are not checked"})
-    if needs_modal and m < scene.retained_modes:
+    if needs_modal and m < n_ret:
         run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
-                          f"{scene.retained_modes} asked for in the modal sums"})
+                          f"{n_ret} asked for in the modal sums"})
 
     # ---- STEP
     mask = None
@@ -278,7 +279,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     full = None
     arrays: dict[str, np.ndarray] = {"omega": omega, "master_modes": np.asarray(masters)}
     if scene.tensors == "full":
-        Sfull = retained_set(max(masters), scene.retained_modes, m)
+        Sfull = retained_set(max(masters), n_ret, m)
         qf = np.array([step_amplitude(Phi[:, s], scene.step, length, mask) for s in Sfull])
         with progress.stage("step_full", f"STEP (full plan) over {len(Sfull)} modes"):
             full = full_step(forces, K, Phi[:, Sfull], qf, scene.step, modes=Sfull,
@@ -334,7 +335,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
             y = None
             for name, ev in methods.items():
                 if ev in MODAL_METHODS:
-                    S = retained_set(p, scene.retained_modes, m)
+                    S = retained_set(p, n_ret, m)
                     r = _modal_method(ev, p, omega, g_mod, h_mod, S, tol, labels)
                     if g_chk is not None:
                         r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels)
@@ -365,7 +366,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     raise KeyError(ev)
                 r.method = name
                 if ev in MODAL_METHODS:
-                    r.retained_modes = len(retained_set(p, scene.retained_modes, m))
+                    r.retained_modes = len(retained_set(p, n_ret, m))
                 if r.T_error is not None and r.T_error > scene.step.tolerance:
                     r.flags.append({"kind": "step_accuracy", "value": float(r.T_error),
                                     "message": f"T changes by {r.T_error:.2e} (relative) between the two "

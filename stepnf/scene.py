@@ -8,7 +8,8 @@ Minimum schema (every later feature extends it without breaking it)::
     [analysis]
     master_modes = [0, 2]          # 0-based elastic-mode indices (rigid modes excluded), or labels "(2,0)"
     methods = ["nf", "dnf", "md", "smd"]
-    retained_modes = 10            # modes kept in the modal sums (nf, md, smd)
+    retained_modes = 10            # modes kept in the modal sums (nf, md, smd); default 10
+                                   # for FE adapters, every mode for modal models
     [output]
     dir = "results"
 
@@ -61,7 +62,7 @@ class Scene:
     model: dict[str, Any]
     master_modes: list[int | str]
     methods: list[str]
-    retained_modes: int = 10
+    retained_modes: int | None = None  # None: 10 for FE adapters, every mode of a modal model
     qm_order: str | None = None
     tensors: str = "targeted"
     rigid_modes: int | None = None
