@@ -63,6 +63,10 @@ class UnknownSolverError(StepnfError, ValueError):
         )
 
 
+class StoreError(StepnfError, ValueError):
+    """A results file or sweep store is unreadable, corrupt or not stepnf's."""
+
+
 class NumericalError(StepnfError, ArithmeticError):
     """A numerical stage cannot produce a meaningful number (singular matrix, NaN)."""
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .backbone import MethodResult, json_float
+from .errors import StoreError
 
 
 @dataclass
@@ -190,9 +191,9 @@ def read_hdf5(path: str | Path) -> dict[str, Any]:
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != "stepnf-run":
-                raise ValueError(f"{path}: not a stepnf run file (format attribute missing)")
+                raise StoreError(f"{path}: not a stepnf run file (format attribute missing)")
             doc = json.loads(f.attrs["json"])
             doc["arrays"] = {k: np.asarray(v) for k, v in f["arrays"].items()}
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read the HDF5 file (corrupt or truncated?): {exc}") from exc
+    except (OSError, KeyError) as exc:
+        raise StoreError(f"{path}: cannot read the HDF5 file (corrupt or truncated?): {exc}") from exc
     return doc

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from .errors import SceneError, allowed
+from .errors import SceneError, StoreError, allowed
 
 SWEEP_KEYS = ("name", "base", "vary", "scenes", "dask")
 DASK_KEYS = ("scheduler", "n_workers", "threads_per_worker")
@@ -163,15 +163,17 @@ def read_store(path: str | Path) -> dict[str, dict[str, Any]]:
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != "stepnf-sweep":
-                raise ValueError(f"{path}: not a stepnf sweep store")
+                raise StoreError(f"{path}: not a stepnf sweep store; move it away or choose another "
+                                 "[output] dir / [sweep] name")
             for cid, g in f.get("cases", {}).items():
                 rec = {k: g.attrs[k] for k in g.attrs}
                 for k in ("params", "result"):
                     if k in rec:
                         rec[k] = json.loads(rec[k])
                 out[cid] = rec
-    except OSError as exc:
-        raise ValueError(f"{path}: the sweep store is unreadable (corrupt or truncated): {exc}") from exc
+    except (OSError, KeyError, json.JSONDecodeError) as exc:
+        raise StoreError(f"{path}: the sweep store is unreadable (corrupt or truncated): {exc}; "
+                         "it was left untouched") from exc
     return out
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from stepnf.errors import SceneError
+from stepnf.errors import SceneError, StoreError
 from stepnf.sweep import load_sweep, read_store, run_case
 
 PLUGIN = textwrap.dedent('''
@@ -73,7 +73,7 @@ def test_sweep_killed_and_resumed(tmp_path, plugin_env):
     while time.time() < deadline and proc.poll() is None:
         try:
             stored_before = read_store(store)
-        except ValueError:
+        except StoreError:
             stored_before = {}
         if len(stored_before) >= 2:
             break
@@ -120,3 +120,20 @@ def test_bad_sweep_file(tmp_path):
     s.write_text('[sweep]\nbase = "base.toml"\nworkers = 3\n')
     with pytest.raises(SceneError, match=r"sweep.workers.*unknown key"):
         load_sweep(s)
+
+
+def test_corrupt_store_is_a_clear_error_and_stays_intact(tmp_path, capsys):
+    from stepnf.cli import main
+
+    (tmp_path / "base.toml").write_text('[model]\nsolver = "polynomial"\nfile = "x.npz"\n'
+                                        '[analysis]\nmaster_modes = [0]\nmethods = ["nf"]\n')
+    s = tmp_path / "s.toml"
+    s.write_text('[sweep]\nname = "st"\nbase = "base.toml"\n[sweep.vary]\n"analysis.retained_modes" = [2, 3]\n')
+    (tmp_path / "results").mkdir()
+    bad = tmp_path / "results" / "st.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + b"garbage" * 100)  # a truncated HDF5 file
+    before = bad.read_bytes()
+    assert main(["sweep", str(s), "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "st.h5" in err and "corrupt or truncated" in err
+    assert bad.read_bytes() == before
