@@ -34,7 +34,11 @@ if [ "$(cat .venv/.stepnf-stamp 2>/dev/null)" != "$stamp" ]; then
   echo "setup: installing stepnf and adapters: ${dists[*]}"
   args=()
   for d in "${dists[@]}"; do args+=(-e "$d"); done
-  .venv/bin/python -m pip install -q --no-build-isolation --disable-pip-version-check "${args[@]}"
+  # --no-deps: numpy, scipy, h5py, dask... come from Debian, built against the same HDF5 and
+  # MPI as FEniCSx (Debian names its h5py distribution differently, so pip would otherwise
+  # fetch a second, incompatible h5py from PyPI)
+  .venv/bin/python -m pip install -q --no-deps --no-build-isolation --disable-pip-version-check "${args[@]}"
+  .venv/bin/python -m pip uninstall -y -q h5py 2>/dev/null || true  # a stray PyPI h5py from older set-ups
   echo "$stamp" > .venv/.stepnf-stamp
 fi
 # FEniCSx form compilation cache inside the project

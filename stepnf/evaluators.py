@@ -23,6 +23,7 @@ import scipy.sparse as sp
 
 from .backbone import MethodResult, backbone_T, qm_coefficients
 from .counters import Counters
+from .errors import NumericalError
 from .linalg import Factorization, PseudoInverse, factorize
 
 
@@ -34,17 +35,26 @@ class Tolerances:
     resonance: float = 0.05
 
 
-def coupled(g: np.ndarray, tol: float) -> np.ndarray:
-    """Mask of modes whose ``|g_s|`` exceeds ``tol * max|g|`` (and is not exactly zero)."""
+def coupled(g: np.ndarray, tol: float, floor: np.ndarray | float | None = None) -> np.ndarray:
+    """Mask of the modes that the master drives: ``|g_s|`` above a threshold, and not exactly zero.
+
+    The threshold is ``floor`` when given (per mode or one number: the
+    pipeline sets it from the size of ``G(phi_p, phi_p)`` and from the STEP
+    noise seen at the check amplitude), else ``tol * max|g|`` (modal models,
+    whose coefficients carry no noise).
+    """
     a = np.abs(np.asarray(g, dtype=float))
-    top = a.max() if a.size else 0.0
-    return (a > tol * top) & (a > 0)
+    if floor is None:
+        top = a.max() if a.size else 0.0
+        floor = tol * top
+    return (a > floor) & (a > 0)
 
 
 def _resonance_flags(method: str, p: int, omega: np.ndarray, g: np.ndarray, S: Sequence[int],
-                     ratio: float, tol: Tolerances, labels: Sequence[Any] | None) -> list[dict]:
+                     ratio: float, tol: Tolerances, labels: Sequence[Any] | None,
+                     floor: np.ndarray | float | None = None) -> list[dict]:
     flags = []
-    cp = coupled(g, tol.coupling)
+    cp = coupled(g, tol.coupling, floor)
     for s in S:
         if s == p or not cp[s]:
             continue
@@ -80,17 +90,17 @@ def retained_set(p: int, n_retained: int | None, m: int) -> np.ndarray:
 
 def nf_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, *,
              tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None,
-             method: str = "nf") -> MethodResult:
+             method: str = "nf", floor: np.ndarray | float | None = None) -> MethodResult:
     """Normal form, modal sums over ``S`` (Table 1, NF row, corrected denominators)."""
     w2 = omega[p] ** 2
-    cp = coupled(g, tol.coupling)
+    cp = coupled(g, tol.coupling, floor)
     Sc = np.asarray([s for s in S if cp[s]], dtype=int)
     ws2, gs2 = omega[Sc] ** 2, g[Sc] ** 2
     den = ws2 * (ws2 - 4 * w2)
     a4, d4 = _sum_terms(2 * gs2 * (ws2 - 2 * w2), den)
     c5, d5 = _sum_terms(4 * gs2 * w2, den)
     C = (0.0, 0.0, 0.0, h - a4, c5, 0.0)
-    flags = _resonance_flags(method, p, omega, g, S, 2.0, tol, labels)
+    flags = _resonance_flags(method, p, omega, g, S, 2.0, tol, labels, floor)
     T = -np.inf if (d4 or d5) else backbone_T(C, omega[p])
     if d4 or d5:
         C = (0.0, 0.0, 0.0, -np.inf, np.inf, 0.0)
@@ -98,16 +108,17 @@ def nf_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, 
 
 
 def md_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, *,
-             tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None) -> MethodResult:
+             tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None,
+             floor: np.ndarray | float | None = None) -> MethodResult:
     """Quadratic manifold with modal derivatives, modal sums over ``S \\ {p}`` (Table 1, MD row)."""
     w2 = omega[p] ** 2
-    cp = coupled(g, tol.coupling)
+    cp = coupled(g, tol.coupling, floor)
     Sc = np.asarray([s for s in S if s != p and cp[s]], dtype=int)
     ws2, gs2 = omega[Sc] ** 2, g[Sc] ** 2
     den = (ws2 - w2) ** 2
     a4, d4 = _sum_terms(2 * gs2 * (ws2 - 2 * w2), den)
     c5, d5 = _sum_terms(4 * gs2 * w2, den)
-    flags = _resonance_flags("md", p, omega, g, S, 1.0, tol, labels)
+    flags = _resonance_flags("md", p, omega, g, S, 1.0, tol, labels, floor)
     if d4 or d5:  # exact 1:1 with a coupled mode: T -> -inf (3 C4 + C5 - 3 C6 ~ -2 g^2 w^2 / 0)
         return MethodResult("md", -np.inf, (float(g[p]), 0.0, 0.0, np.inf, np.inf, np.inf), flags,
                             order="modal", retained_modes=len(S))
@@ -116,10 +127,11 @@ def md_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, 
 
 
 def smd_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, *,
-              tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None) -> MethodResult:
+              tol: Tolerances = Tolerances(), labels: Sequence[Any] | None = None,
+              floor: np.ndarray | float | None = None) -> MethodResult:
     """Quadratic manifold with static modal derivatives, modal sums over ``S`` (Table 1, SMD row)."""
     w2 = omega[p] ** 2
-    cp = coupled(g, tol.coupling)
+    cp = coupled(g, tol.coupling, floor)
     Sc = np.asarray([s for s in S if cp[s]], dtype=int)
     ws2, gs2 = omega[Sc] ** 2, g[Sc] ** 2
     gp = float(g[p])
@@ -157,8 +169,14 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
     """
     w2 = omega_p ** 2
     y = ctx.Kpinv(Gv)
-    Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
-    z = Z.solve(Gv - ctx.M @ (ctx.Kpinv.R @ (ctx.Kpinv.R.T @ Gv)) if ctx.Kpinv.R.shape[1] else Gv)
+    try:
+        Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
+        z = Z.solve(Gv - ctx.M @ (ctx.Kpinv.R @ (ctx.Kpinv.R.T @ Gv)) if ctx.Kpinv.R.shape[1] else Gv)
+    except NumericalError as exc:  # exact 1:2 resonance: the NF diverges (same convention as nf_modal)
+        flag = {"kind": "internal_resonance_1_2", "mode": None,
+                "message": f"DNF: K - 4 w^2 M is singular for master mode {p} (a mode at exactly twice "
+                           f"its frequency): the normal form diverges ({exc})"}
+        return MethodResult("dnf", -np.inf, (0.0, 0.0, 0.0, -np.inf, np.inf, 0.0), [flag], order="full"), y
     a_bar = -0.5 * (y + z)
     b_bar = (z - y) / (2 * w2)
     A = 2 * float(a_bar @ Gv)
@@ -184,7 +202,7 @@ def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
 
 def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
             twins: np.ndarray | None = None, *, g: np.ndarray | None = None,
-            tol: Tolerances = Tolerances()) -> MethodResult:
+            tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None) -> MethodResult:
     """Modal-derivative quadratic manifold, full order.
 
     ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
@@ -197,8 +215,9 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
     flags: list[dict] = []
     if D.shape[1] > 1:
         gt = D[:, 1:].T @ Gv
-        scale = max(np.abs(g).max() if g is not None and g.size else abs(float(phi @ Gv)), 1e-300)
-        if np.any(np.abs(gt) > tol.coupling * scale):
+        if floor is None:
+            floor = tol.coupling * max(np.abs(g).max() if g is not None and g.size else abs(float(phi @ Gv)), 1e-300)
+        if np.any(np.abs(gt) > (np.max(floor) if np.ndim(floor) else floor)):
             flags.append({"kind": "internal_resonance_1_1", "mode": None,
                           "message": f"MD: a degenerate twin of master mode {p} couples "
                                      f"(|g| = {np.abs(gt).max():.3e}): modal derivative diverges"})
@@ -207,9 +226,15 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
     MD = ctx.M @ D
     A = sp.bmat([[sp.csr_matrix(ctx.K) - w2 * sp.csr_matrix(ctx.M), sp.csr_matrix(MD)],
                  [sp.csr_matrix(MD.T), None]]).tocsr()
-    fac = factorize(A, counters=ctx.counters, backend=ctx.backend, label=f"bordered K - w^2 M (mode {p})")
-    rhs = np.concatenate([-2.0 * Gv, np.zeros(D.shape[1])])
-    theta = fac.solve(rhs)[: len(Gv)]
+    try:
+        fac = factorize(A, counters=ctx.counters, backend=ctx.backend, label=f"bordered K - w^2 M (mode {p})")
+        theta = fac.solve(np.concatenate([-2.0 * Gv, np.zeros(D.shape[1])]))[: len(Gv)]
+    except NumericalError as exc:  # a mode at exactly w_p that is not among the twins: MD diverges
+        flags.append({"kind": "internal_resonance_1_1", "mode": None,
+                      "message": f"MD: K - w^2 M is singular beyond the twins of master mode {p} "
+                                 f"(an undeclared mode at the same frequency): modal derivative diverges ({exc})"})
+        return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
+                            flags, order="full")
     res = _qm_full("md", phi, omega_p, Gv, h, theta, ctx)
     res.flags = flags + res.flags
     return res

@@ -85,14 +85,14 @@ def resolve_masters(scene: Scene, labels: Sequence[Any], n_modes: int, *, comple
 
 
 def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
-                    twins: Sequence[int]) -> tuple[float | None, int | None]:
+                    twins: Sequence[int], floor: np.ndarray | float | None = None) -> tuple[float | None, int | None]:
     """rho_p = min over coupled slave modes s of w_s / w_p (paper Eq. 8).
 
     Slaves are the modes that the master drives through ``g^s_pp`` (others
     cannot break the slow/fast assumption); when none couples, every
     non-twin slave counts, as in the paper's literal definition.
     """
-    cp = coupled(g, tol.coupling)
+    cp = coupled(g, tol.coupling, floor)
     cand = [s for s in range(len(omega)) if s != p and cp[s]]
     if not cand:
         cand = [s for s in range(len(omega)) if s != p and s not in twins]
@@ -103,19 +103,35 @@ def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
     return float(r[j]), int(cand[j])
 
 
+def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.ndarray:
+    """Per-mode threshold under which ``g^s_pp`` counts as zero (uncoupled by symmetry).
+
+    ``tol.coupling`` times ``||G(phi_p, phi_p)||`` in the (lumped) ``M^-1``
+    norm, which bounds every ``|g^s_pp|`` of M-normalised modes, and at least
+    ten times the change of ``g^s_pp`` between the two STEP amplitudes (the
+    noise the solver's forces carry).
+    """
+    dm = np.asarray(M.diagonal()).ravel()
+    scale = float(np.sqrt(np.sum(st.Gv**2 / np.where(dm > 0, dm, np.inf))))
+    floor = np.full(Phi.shape[1], tol.coupling * scale)
+    if st.Gv_check is not None:
+        floor = np.maximum(floor, 10.0 * np.abs(Phi.T @ (st.Gv - st.Gv_check)))
+    return floor
+
+
 def _t_error(T: float, T2: float) -> float:
     if not (np.isfinite(T) and np.isfinite(T2)):
         return 0.0 if T == T2 else float("inf")
     return abs(T - T2) / abs(T) if T != 0 else (0.0 if T2 == 0 else float("inf"))
 
 
-def _modal_method(name: str, p: int, omega, g, h, S, tol, labels) -> MethodResult:
+def _modal_method(name: str, p: int, omega, g, h, S, tol, labels, floor=None) -> MethodResult:
     if name == "nf":
-        return nf_modal(p, omega, g, h, S, tol=tol, labels=labels)
+        return nf_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
     if name == "md_modal":
-        return md_modal(p, omega, g, h, S, tol=tol, labels=labels)
+        return md_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
     if name == "smd_modal":
-        return smd_modal(p, omega, g, h, S, tol=tol, labels=labels)
+        return smd_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
     raise KeyError(name)
 
 
@@ -324,7 +340,8 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                 g_chk = Phi.T @ st.Gv_check if st.Gv_check is not None else None
                 h_chk = st.h_check
             g_all = Phi.T @ st.Gv if st is not None else g_mod
-            rho, rho_mode = slow_fast_ratio(p, omega, g_all, tol, twins)
+            floor = coupling_floor(st, Phi, M, tol) if st is not None else None
+            rho, rho_mode = slow_fast_ratio(p, omega, g_all, tol, twins, floor)
             w_max = adapter.transverse_amplitude(phi)
             rec = ModeResult(index=p, label=labels[p], omega=float(omega[p]), rho=rho, rho_mode=rho_mode,
                              omega_bar=scales.omega_bar(omega[p]) if scales else None, w_max=w_max)
@@ -336,31 +353,31 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
             for name, ev in methods.items():
                 if ev in MODAL_METHODS:
                     S = retained_set(p, n_ret, m)
-                    r = _modal_method(ev, p, omega, g_mod, h_mod, S, tol, labels)
+                    r = _modal_method(ev, p, omega, g_mod, h_mod, S, tol, labels, floor)
                     if g_chk is not None:
-                        r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels)
+                        r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels, floor)
                         r.T_error = _t_error(r.T, r2.T)
                 elif ev == "dnf":
                     dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
                     dh = st.h - st.h_check if st.h_check is not None else 0.0
                     r, y = dnf(p, phi, omega[p], st.Gv, st.h, context(), dGv=dG, dh=dh)
-                    r.flags += _resonance_flags("dnf", p, omega, g_all, range(m), 2.0, tol, labels)
+                    r.flags += _resonance_flags("dnf", p, omega, g_all, range(m), 2.0, tol, labels, floor)
                 elif ev == "smd_full":
                     r = smd_full(p, phi, omega[p], st.Gv, st.h, context(), y=y)
                     if st.Gv_check is not None:  # STEP sensitivity through the modal proxy over computed modes
                         S = np.arange(m)
-                        a = smd_modal(p, omega, g_all, st.h, S, tol=tol)
-                        b = smd_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol)
+                        a = smd_modal(p, omega, g_all, st.h, S, tol=tol, floor=floor)
+                        b = smd_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol, floor=floor)
                         r.T_error = _t_error(a.T, b.T)
                 elif ev == "md_full":
                     tw = Phi[:, twins] if twins else None
-                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, g=g_all, tol=tol)
+                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, g=g_all, tol=tol, floor=floor)
                     r.flags += _resonance_flags("md", p, omega, g_all,
-                                                [s for s in range(m) if s not in twins], 1.0, tol, labels)
+                                                [s for s in range(m) if s not in twins], 1.0, tol, labels, floor)
                     if st.Gv_check is not None and np.isfinite(r.T):
                         S = np.array([s for s in range(m) if s not in twins])
-                        a = md_modal(p, omega, g_all, st.h, S, tol=tol)
-                        b = md_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol)
+                        a = md_modal(p, omega, g_all, st.h, S, tol=tol, floor=floor)
+                        b = md_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol, floor=floor)
                         r.T_error = _t_error(a.T, b.T)
                 else:  # pragma: no cover - resolve_methods only yields the above
                     raise KeyError(ev)

@@ -67,7 +67,7 @@ class Scene:
     tensors: str = "targeted"
     rigid_modes: int | None = None
     rigid_tolerance: float = 1e-11
-    degeneracy_tolerance: float = 1e-4
+    degeneracy_tolerance: float = 1e-3
     tolerances: Tolerances = field(default_factory=Tolerances)
     linear_solver: str = "auto"
     max_modes: int = 400
