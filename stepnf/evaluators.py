@@ -7,9 +7,14 @@ a bordered solve with ``K - w^2 M``.
 
 Conventions: ``omega`` angular frequencies (m,) of the elastic modes,
 ``g[s] = g^s_pp = phi_s^T G(phi_p, phi_p)``, ``h = h^p_ppp``; everything in the
-model's own units. A term whose ``|g_s|`` is below ``coupling_tolerance``
-times the largest ``|g_s|`` is treated as zero by symmetry (so a degenerate
-twin that does not couple cannot blow up MD); a coupled mode within
+model's own units. A term whose ``|g_s|`` is below a *coupling floor* is
+treated as zero by symmetry, so that a degenerate twin that does not couple
+cannot blow MD up: the floor is ``coupling_tolerance`` (default 1e-5) times
+the largest ``|g_s|`` for modal models, and for FE models (set by the
+pipeline) the same fraction of ``||G(phi_p, phi_p)||`` in the ``M^-1`` norm, or
+ten times the STEP noise of ``g_s``, whichever is larger: couplings that a
+mesh's imperfect symmetry creates (measured ~1e-6 on the O-grid caps) stay
+below it, physical ones (1e-2 and more) far above. A coupled mode within
 ``resonance_tolerance`` of the resonance (``w_s/w_p`` near 2 for NF/DNF, near
 1 for MD) is flagged, naming the mode; exact resonance gives ``+-inf``.
 """
@@ -31,7 +36,7 @@ from .linalg import Factorization, PseudoInverse, factorize
 class Tolerances:
     """Thresholds of the evaluators (scene table ``[analysis]``)."""
 
-    coupling: float = 1e-8
+    coupling: float = 1e-5
     resonance: float = 0.05
 
 
@@ -151,12 +156,20 @@ class FullOrderContext:
     counters: Counters
     backend: str = "auto"
     shifted: Callable[[float, str], Factorization] | None = None
+    _last: tuple[float, Factorization] | None = None
 
     def shifted_factorization(self, sigma: float, label: str) -> Factorization:
+        """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free."""
+        if self._last is not None and self._last[0] == sigma:
+            return self._last[1]
+        self._last = None  # free the previous factors before making new ones
         if self.shifted is not None:
-            return self.shifted(sigma, label)
-        A = (sp.csr_matrix(self.K) - sigma * sp.csr_matrix(self.M)).tocsr()
-        return factorize(A, counters=self.counters, backend=self.backend, label=label)
+            fac = self.shifted(sigma, label)
+        else:
+            A = (sp.csr_matrix(self.K) - sigma * sp.csr_matrix(self.M)).tocsr()
+            fac = factorize(A, counters=self.counters, backend=self.backend, label=label)
+        self._last = (sigma, fac)
+        return fac
 
 
 def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,

@@ -96,7 +96,10 @@ def factorize(A: sp.spmatrix | np.ndarray, *, counters: Counters | None = None,
             raise NumericalError(f"{label or 'matrix'} is exactly singular")
         return Factorization(lambda b: sla.lu_solve(lu, b), n, kind, counters, label)
     if kind == "superlu":
-        lu = spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A")
+        try:
+            lu = spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A")
+        except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+            raise NumericalError(f"{label or 'matrix'}: {exc}") from exc
         return Factorization(lu.solve, n, kind, counters, label)
     return _mumps(sp.csr_matrix(A), counters, label)
 
@@ -109,12 +112,18 @@ def _mumps(A: sp.csr_matrix, counters: Counters | None, label: str) -> Factoriza
     n = A.shape[0]
     P = PETSc.Mat().createAIJ(size=A.shape, csr=(A.indptr, A.indices, A.data), comm=PETSc.COMM_SELF)
     P.assemble()
+    symmetric = abs(A - A.T).max() <= 1e-13 * abs(A).max() if A.nnz else True
     ksp = PETSc.KSP().create(PETSc.COMM_SELF)
     ksp.setOperators(P)
     ksp.setType("preonly")
     pc = ksp.getPC()
-    pc.setType("lu")
+    # symmetric matrices (K - sigma M, also indefinite): MUMPS LDL^T with the AMF ordering,
+    # measured 1.45x faster than LU with the default ordering on a 16k-dof hex27 cap
+    pc.setType("cholesky" if symmetric else "lu")
     pc.setFactorSolverType("mumps")
+    pc.setFactorSetUpSolverType()
+    F = pc.getFactorMatrix()
+    F.setMumpsIcntl(7, 2)
     ksp.setUp()
     xv, bv = P.createVecs()
 

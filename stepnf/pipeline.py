@@ -23,7 +23,7 @@ from .errors import SceneError
 from .evaluators import (FullOrderContext, Tolerances, _resonance_flags, coupled, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
 from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
-from .modal import ModalBasis, modal_analysis
+from .modal import ModalBasis, modal_analysis, modes_near, rigid_body_fields
 from .modal_model import ModalModel
 from .progress import Progress
 from .registry import get_solver
@@ -103,6 +103,42 @@ def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
     return float(r[j]), int(cand[j])
 
 
+def floor_scale(st, M: sp.spmatrix, tol: Tolerances) -> float:
+    """``tol.coupling * ||G(phi_p, phi_p)||`` in the lumped ``M^-1`` norm (bounds every ``|g^s_pp|``)."""
+    dm = np.asarray(M.diagonal()).ravel()
+    return tol.coupling * float(np.sqrt(np.sum(st.Gv**2 / np.where(dm > 0, dm, np.inf))))
+
+
+def _one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext, floor0: float,
+                   tol: Tolerances, adapter: SolverAdapter, counters: Counters) -> list[dict]:
+    """DNF's 1:2 check: the modes nearest ``2 w_p``, found with the DNF's own ``K - 4 w^2 M`` factors."""
+    if basis.complete:
+        near_w, near_phi = basis.omega, basis.phi
+    else:
+        Z = ctx.shifted_factorization(4 * w * w, "")
+        near_w, near_phi = modes_near(ctx.K, ctx.M, 4 * w * w, lambda b: Z.solve(b, count=False), 4,
+                                      counters=counters)
+    g = near_phi.T @ st.Gv
+    floor = np.full(len(g), floor0)
+    if st.Gv_check is not None:
+        floor = np.maximum(floor, 10.0 * np.abs(near_phi.T @ (st.Gv - st.Gv_check)))
+    labels = adapter.mode_labels(near_phi) if not basis.complete else list(adapter.mode_labels(near_phi))
+    flags = []
+    for j in np.nonzero(coupled(g, tol.coupling, floor))[0]:
+        r = near_w[j] / w
+        if abs(r - 2.0) > 2.0 * tol.resonance:
+            continue
+        hit = np.nonzero(np.isclose(basis.omega, near_w[j], rtol=1e-9))[0]
+        s_idx = int(hit[0]) if len(hit) else None
+        name = (f"mode {s_idx}" if s_idx is not None else f"a mode at w = {near_w[j]:.6g}") + \
+            (f" {labels[j]}" if labels[j] is not None else "")
+        flags.append({"kind": "internal_resonance_1_2", "mode": s_idx, "label": labels[j], "ratio": float(r),
+                      "omega": float(near_w[j]),
+                      "message": f"DNF: {name} is in 1:2 internal resonance with master mode {p} "
+                                 f"(w_s/w_p = {r:.4f}); the normal form has a small denominator there"})
+    return flags
+
+
 def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.ndarray:
     """Per-mode threshold under which ``g^s_pp`` counts as zero (uncoupled by symmetry).
 
@@ -111,9 +147,7 @@ def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.n
     ten times the change of ``g^s_pp`` between the two STEP amplitudes (the
     noise the solver's forces carry).
     """
-    dm = np.asarray(M.diagonal()).ravel()
-    scale = float(np.sqrt(np.sum(st.Gv**2 / np.where(dm > 0, dm, np.inf))))
-    floor = np.full(Phi.shape[1], tol.coupling * scale)
+    floor = np.full(Phi.shape[1], floor_scale(st, M, tol))
     if st.Gv_check is not None:
         floor = np.maximum(floor, 10.0 * np.abs(Phi.T @ (st.Gv - st.Gv_check)))
     return floor
@@ -254,32 +288,29 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         ms = resolve_masters(scene, labs, b.n_elastic, complete=False)
         if ms is None:
             return False
-        # the resonance checks need the spectrum up to twice the highest master frequency
-        return b.omega[-1] >= 2.0 * (1 + tol.resonance) * max(b.omega[i] for i in ms)
+        # the 1:1 checks need the modes just above the highest master (1:2 is checked locally)
+        return b.complete or b.omega[-1] >= (1 + tol.resonance) * max(b.omega[i] for i in ms)
 
     eig = adapter.eigenmodes if adapter.provides_eigenmodes else None
+    X, dirs = adapter.dof_coordinates(), adapter.dof_directions()
+    cands = rigid_body_fields(X, dirs) if X is not None and dirs is not None else None
     with progress.stage("eigen", "modal analysis"):
         basis = modal_analysis(K, M, need, counters=counters, rigid_tolerance=scene.rigid_tolerance,
                                rigid_modes=scene.rigid_modes, degeneracy_tolerance=scene.degeneracy_tolerance,
                                max_modes=scene.max_modes, backend=backend, eigensolver=eig, enough=enough,
-                               progress=progress.message)
+                               rigid_candidates=cands, progress=progress.message)
     labels = labels_of(basis) if any(isinstance(x, str) for x in scene.master_modes) else list(adapter.mode_labels(basis.phi))
     masters = resolve_masters(scene, labels, basis.n_elastic, complete=True)
     assert masters is not None
     omega, Phi = basis.omega, basis.phi
     m = basis.n_elastic
     run_flags: list[dict] = []
-    if not basis.complete and omega[-1] < 2.0 * max(omega[i] for i in masters):
-        run_flags.append({"kind": "resonance_check_incomplete",
-                          "message": f"modes computed up to w = {omega[-1]:.4g} only (max_modes = "
-                                     f"{scene.max_modes}); 1:2 resonances above are not checked"})
     if needs_modal and m < n_ret:
         run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
                           f"{n_ret} asked for in the modal sums"})
 
     # ---- STEP
     mask = None
-    dirs = adapter.dof_directions()
     if dirs is not None:
         mask = np.asarray(dirs) < 3
     length = adapter.characteristic_length()
@@ -361,7 +392,8 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
                     dh = st.h - st.h_check if st.h_check is not None else 0.0
                     r, y = dnf(p, phi, omega[p], st.Gv, st.h, context(), dGv=dG, dh=dh)
-                    r.flags += _resonance_flags("dnf", p, omega, g_all, range(m), 2.0, tol, labels, floor)
+                    r.flags += _one_two_flags(p, omega[p], st, basis, context(), floor_scale(st, M, tol),
+                                              tol, adapter, counters)
                 elif ev == "smd_full":
                     r = smd_full(p, phi, omega[p], st.Gv, st.h, context(), y=y)
                     if st.Gv_check is not None:  # STEP sensitivity through the modal proxy over computed modes
@@ -394,7 +426,6 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
             modes.append(rec)
             arrays[f"Gv_{p}"] = st.Gv if st is not None else np.zeros(0)
     arrays["phi_masters"] = Phi[:, masters]
-    X = adapter.dof_coordinates()
     if X is not None:
         arrays["dof_coordinates"] = np.asarray(X, dtype=float)
     if dirs is not None:

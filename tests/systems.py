@@ -35,12 +35,13 @@ def random_system(n: int, seed: int = 0, *, rigid: int = 0, spread: float = 1.0)
     if rigid:
         E = Minv_VT[:, rigid:]  # projector onto elastic coordinates: P = V_e (M V_e)^T
         P = V[:, rigid:] @ E.T  # u -> elastic part
-        G = np.einsum("ai,bj,ck,abc->ijk", P, P, P, G)
-        H = np.einsum("ai,bj,ck,dl,abcd->ijkl", P, P, P, P, H)
+        # optimize=True: contract one index at a time (the naive 8-fold loop is O(n^8))
+        G = np.einsum("ai,bj,ck,abc->ijk", P, P, P, G, optimize=True)
+        H = np.einsum("ai,bj,ck,dl,abcd->ijkl", P, P, P, P, H, optimize=True)
     return M, K, G, H
 
 
-def modal_to_physical(omega, g, h, seed: int = 0, *, rigid: int = 0):
+def modal_to_physical(omega, g, h, seed: int = 0, *, rigid: int = 0, return_transform: bool = False):
     """Physical (M, K, G, H) whose mass-normalised modes have the given modal tensors.
 
     ``omega`` (m,) elastic frequencies, ``g`` (m, m, m) and ``h`` (m, m, m, m)
@@ -50,7 +51,9 @@ def modal_to_physical(omega, g, h, seed: int = 0, *, rigid: int = 0):
     and the tensors transform covariantly, so mode ``s`` of the physical
     system is ``P e_s`` (up to sign) and its modal tensors are ``g``, ``h``.
     ``rigid`` zero-frequency modes are put first; they do not enter G or H
-    (self-equilibrated nonlinear forces).
+    (self-equilibrated nonlinear forces). With ``return_transform`` the
+    matrix ``P`` (its columns are the M-normalised modes, rigid ones first)
+    is returned as a fifth item.
     """
     omega = np.asarray(omega, dtype=float)
     m = len(omega)
@@ -66,6 +69,7 @@ def modal_to_physical(omega, g, h, seed: int = 0, *, rigid: int = 0):
     gf[rigid:, rigid:, rigid:] = g
     hf = np.zeros((n, n, n, n))
     hf[rigid:, rigid:, rigid:, rigid:] = h
-    G = np.einsum("sa,sij,ib,jc->abc", Q, gf, Q, Q)
-    H = np.einsum("sa,sijk,ib,jc,kd->abcd", Q, hf, Q, Q, Q)
-    return (M + M.T) / 2, (K + K.T) / 2, G, H
+    G = np.einsum("sa,sij,ib,jc->abc", Q, gf, Q, Q, optimize=True)
+    H = np.einsum("sa,sijk,ib,jc,kd->abcd", Q, hf, Q, Q, Q, optimize=True)
+    out = ((M + M.T) / 2, (K + K.T) / 2, G, H)
+    return out + (P,) if return_transform else out
