@@ -20,6 +20,10 @@ class Counters:
     factorizations: int = 0
     eigensolver_solves: int = 0
     solver_runs: int = 0
+    #: wall-clock seconds spent factorising (all factorisations above)
+    factorization_seconds: float = 0.0
 
-    def to_dict(self) -> dict[str, int]:
-        return asdict(self)
+    def to_dict(self) -> dict[str, int | float]:
+        d = asdict(self)
+        d["factorization_seconds"] = round(self.factorization_seconds, 4)
+        return d

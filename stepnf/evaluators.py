@@ -29,6 +29,7 @@ import scipy.sparse as sp
 from .backbone import MethodResult, backbone_T, qm_coefficients
 from .counters import Counters
 from .errors import NumericalError
+from .deflation import DeflatedSolver
 from .linalg import Factorization, PseudoInverse, factorize
 
 
@@ -156,6 +157,8 @@ class FullOrderContext:
     counters: Counters
     backend: str = "auto"
     shifted: Callable[[float, str], Factorization] | None = None
+    #: solves from the computed modes and the eigen-solver's factorisation (no new factorisation)
+    deflated: "DeflatedSolver | None" = None
     _last: tuple[float, Factorization] | None = None
 
     def shifted_factorization(self, sigma: float, label: str) -> Factorization:
@@ -182,9 +185,13 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
     """
     w2 = omega_p ** 2
     y = ctx.Kpinv(Gv)
+    b = Gv - ctx.M @ (ctx.Kpinv.R @ (ctx.Kpinv.R.T @ Gv)) if ctx.Kpinv.R.shape[1] else Gv
     try:
-        Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
-        z = Z.solve(Gv - ctx.M @ (ctx.Kpinv.R @ (ctx.Kpinv.R.T @ Gv)) if ctx.Kpinv.R.shape[1] else Gv)
+        if ctx.deflated is not None and ctx.deflated.admissible(4 * w2):
+            z = ctx.deflated.solve(b, 4 * w2)  # 2 w_p inside the computed spectrum: no factorisation
+        else:
+            Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
+            z = Z.solve(b)
     except NumericalError as exc:  # exact 1:2 resonance: the NF diverges (same convention as nf_modal)
         flag = {"kind": "internal_resonance_1_2", "mode": None,
                 "message": f"DNF: K - 4 w^2 M is singular for master mode {p} (a mode at exactly twice "
@@ -215,13 +222,17 @@ def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
 
 def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
             twins: np.ndarray | None = None, *, g: np.ndarray | None = None,
-            tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None) -> MethodResult:
+            tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None,
+            exclude: Sequence[int] | None = None) -> MethodResult:
     """Modal-derivative quadratic manifold, full order.
 
     ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
     ``D = [phi_p, twins]`` (the degenerate companions of p), so that
     ``theta`` is M-orthogonal to them. A twin that couples (``phi_t^T Gv``
-    not zero by symmetry) makes MD diverge: T = -inf, flagged.
+    not zero by symmetry) makes MD diverge: T = -inf, flagged. With
+    ``ctx.deflated`` and ``exclude`` (the columns of its modes that are p and
+    its twins) the same theta comes from the computed modes and CG, without
+    a factorisation.
     """
     w2 = omega_p ** 2
     D = phi[:, None] if twins is None or len(twins) == 0 else np.column_stack([phi, twins])
@@ -236,6 +247,11 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
                                      f"(|g| = {np.abs(gt).max():.3e}): modal derivative diverges"})
             return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
                                 flags, order="full")
+    if ctx.deflated is not None and exclude is not None:
+        theta = ctx.deflated.solve(-2.0 * Gv, w2, exclude=exclude)
+        res = _qm_full("md", phi, omega_p, Gv, h, theta, ctx)
+        res.flags = flags + res.flags
+        return res
     MD = ctx.M @ D
     A = sp.bmat([[sp.csr_matrix(ctx.K) - w2 * sp.csr_matrix(ctx.M), sp.csr_matrix(MD)],
                  [sp.csr_matrix(MD.T), None]]).tocsr()

@@ -17,6 +17,7 @@ stays light.
 from __future__ import annotations
 
 import os
+import time
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
@@ -85,10 +86,17 @@ def choose_backend(n: int, backend: str = "auto") -> str:
 def factorize(A: sp.spmatrix | np.ndarray, *, counters: Counters | None = None,
               backend: str = "auto", label: str = "") -> Factorization:
     """Factorise a square matrix and return a counting :class:`Factorization`."""
-    n = A.shape[0]
-    kind = choose_backend(n, backend)
+    t0 = time.perf_counter()
+    fac = _factorize(A, backend, counters, label)
     if counters is not None:
         counters.factorizations += 1
+        counters.factorization_seconds += time.perf_counter() - t0
+    return fac
+
+
+def _factorize(A, backend: str, counters: Counters | None, label: str) -> Factorization:
+    n = A.shape[0]
+    kind = choose_backend(n, backend)
     if kind == "dense":
         Ad = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
         lu = sla.lu_factor(Ad, check_finite=True)

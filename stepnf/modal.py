@@ -22,7 +22,7 @@ are runs of elastic modes whose frequencies agree to ``degeneracy_tolerance``
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import scipy.linalg as sla
@@ -52,6 +52,9 @@ class ModalBasis:
     degenerate_groups: list[list[int]] = field(default_factory=list)
     complete: bool = False
     solver: str = ""
+    #: the eigen-solver's factorisation of ``K - shift M`` (sparse path), reusable by later solves
+    factorization: Any = None
+    shift: float = 0.0
 
     @property
     def n_elastic(self) -> int:
@@ -208,6 +211,8 @@ def modal_analysis(
             counters.eigensolver_solves += calls[0]
             calls[0] = 0
         done = basis.n_elastic >= need and (min_omega is None or basis.omega[-1] > min_omega)
+        if fac is not None:
+            basis.factorization, basis.shift = fac, sigma
         if done and (enough is None or enough(basis)):
             return basis
         if k >= min(max_modes, n - 2):

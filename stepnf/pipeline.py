@@ -19,11 +19,12 @@ from .adapter import SolverAdapter
 from .backbone import MethodResult
 from .checkpoint import Checkpoint
 from .counters import Counters
+from .deflation import DeflatedSolver
 from .errors import SceneError
 from .evaluators import (FullOrderContext, Tolerances, _resonance_flags, coupled, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
 from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
-from .modal import ModalBasis, modal_analysis, modes_near, rigid_body_fields
+from .modal import ModalBasis, modal_analysis, rigid_body_fields
 from .modal_model import ModalModel
 from .progress import Progress
 from .registry import get_solver
@@ -112,12 +113,11 @@ def floor_scale(st, M: sp.spmatrix, tol: Tolerances) -> float:
 def _one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext, floor0: float,
                    tol: Tolerances, adapter: SolverAdapter, counters: Counters) -> list[dict]:
     """DNF's 1:2 check: the modes nearest ``2 w_p``, found with the DNF's own ``K - 4 w^2 M`` factors."""
-    if basis.complete:
-        near_w, near_phi = basis.omega, basis.phi
+    top = basis.omega[-1] if basis.n_elastic else 0.0
+    if basis.complete or top >= 2.0 * w * (1 + tol.resonance):
+        near_w, near_phi = basis.omega, basis.phi  # every mode near 2 w_p is among the computed ones
     else:
-        Z = ctx.shifted_factorization(4 * w * w, "")
-        near_w, near_phi = modes_near(ctx.K, ctx.M, 4 * w * w, lambda b: Z.solve(b, count=False), 4,
-                                      counters=counters)
+        near_w, near_phi = _ritz_near(ctx, 4 * w * w, st.Gv, counters)
     g = near_phi.T @ st.Gv
     floor = np.full(len(g), floor0)
     if st.Gv_check is not None:
@@ -137,6 +137,46 @@ def _one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContex
                       "message": f"DNF: {name} is in 1:2 internal resonance with master mode {p} "
                                  f"(w_s/w_p = {r:.4f}); the normal form has a small denominator there"})
     return flags
+
+
+def _ritz_near(ctx: FullOrderContext, sigma: float, Gv: np.ndarray, counters: Counters,
+               steps: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Rayleigh-Ritz on ``span{Z^-1 Gv, (Z^-1 M)^2 Gv, ...}``, ``Z = K - sigma M`` (DNF's factors).
+
+    Inverse iteration from ``G(phi_p, phi_p)`` amplifies exactly the modes that
+    are both coupled to the master and near ``sqrt(sigma) = 2 w_p``, so three
+    solves find the modes a 1:2 resonance could come from.
+    """
+    Z = ctx.shifted_factorization(sigma, "")
+    R = ctx.Kpinv.R
+    v = Gv - ctx.M @ (R @ (R.T @ Gv)) if R.shape[1] else Gv
+    V = []
+    for _ in range(steps):
+        v = Z.solve(v, count=False)
+        counters.eigensolver_solves += 1
+        V.append(v)
+        v = ctx.M @ v
+    V = np.column_stack(V)
+    Mr = V.T @ (ctx.M @ V)
+    Kr = V.T @ (ctx.K @ V)
+    d = np.sqrt(np.abs(np.diag(Mr)))
+    Mr, Kr, V = Mr / np.outer(d, d), Kr / np.outer(d, d), V / d
+    lam, y = np.linalg.eigh(Mr)
+    keep = lam > 1e-12 * lam.max()  # drop directions the iteration made dependent
+    T = y[:, keep] / np.sqrt(lam[keep])
+    mu, z = np.linalg.eigh(T.T @ Kr @ T)
+    phi = V @ (T @ z)
+    return np.sqrt(np.maximum(mu, 0.0)), phi
+
+
+class _DeflatedPinv:
+    """``K^+`` through a :class:`DeflatedSolver` (same interface as :class:`PseudoInverse`)."""
+
+    def __init__(self, solver: DeflatedSolver, R: np.ndarray):
+        self.solver, self.R = solver, R
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        return self.solver.pinv(b)
 
 
 def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.ndarray:
@@ -341,15 +381,23 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     def context() -> FullOrderContext:
         nonlocal ctx
         if ctx is None:
-            Kp = PseudoInverse(K, M, basis.rigid, counters=counters, backend=backend,
-                               solver_factory=shift_solver)
+            deflated = None
+            if basis.factorization is not None and shift_solver is None and scene.deflation:
+                # every shifted solve below the computed spectrum reuses the eigen-solver's factors
+                F0 = basis.factorization
+                deflated = DeflatedSolver(K, M, Phi, omega**2, basis.rigid, lambda b: F0.solve(b, count=False),
+                                          counters)
+                Kp = _DeflatedPinv(deflated, basis.rigid)
+            else:
+                Kp = PseudoInverse(K, M, basis.rigid, counters=counters, backend=backend,
+                                   solver_factory=shift_solver)
             shifted = None
             if shift_solver is not None:
                 def shifted(sigma: float, label: str) -> Factorization:
                     counters.factorizations += 1
                     raw = shift_solver(sigma)
                     return Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, label)
-            ctx = FullOrderContext(K, M, Kp, counters, backend, shifted)
+            ctx = FullOrderContext(K, M, Kp, counters, backend, shifted, deflated)
         return ctx
 
     scales = adapter.shell_scales()
@@ -403,7 +451,9 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                         r.T_error = _t_error(a.T, b.T)
                 elif ev == "md_full":
                     tw = Phi[:, twins] if twins else None
-                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, g=g_all, tol=tol, floor=floor)
+                    nr = basis.rigid.shape[1]
+                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, g=g_all, tol=tol, floor=floor,
+                                exclude=[nr + p] + [nr + t for t in twins])
                     r.flags += _resonance_flags("md", p, omega, g_all,
                                                 [s for s in range(m) if s not in twins], 1.0, tol, labels, floor)
                     if st.Gv_check is not None and np.isfinite(r.T):

@@ -18,7 +18,10 @@ are evaluated; default "full" for FE adapters, "modal" for modal models),
 ``tensors`` ("targeted" | "full": the full Muravyov-Rizzi STEP over the
 retained modes), ``rigid_modes`` ("auto" | int), ``rigid_tolerance``,
 ``degeneracy_tolerance``, ``resonance_tolerance``, ``coupling_tolerance``,
-``linear_solver`` ("auto" | "dense" | "superlu" | "mumps"), ``max_modes``; and
+``linear_solver`` ("auto" | "dense" | "superlu" | "mumps"), ``deflation``
+(true: shifted solves below the computed spectrum reuse the eigen-solver's
+factorisation, see :mod:`stepnf.deflation`; false: one factorisation per
+shift), ``max_modes``; and
 the table ``[analysis.step]``: ``amplitude`` ("auto" | a length in model
 units), ``relative_amplitude`` (fraction of the characteristic length),
 ``check`` (bool), ``check_ratio``, ``tolerance``. ``[output]``: ``dir``,
@@ -42,7 +45,7 @@ METHODS = ("nf", "dnf", "md", "smd", "md_modal", "smd_modal", "md_full", "smd_fu
 TOP_KEYS = ("model", "analysis", "output")
 ANALYSIS_KEYS = ("master_modes", "methods", "retained_modes", "qm_order", "tensors", "rigid_modes",
                  "rigid_tolerance", "degeneracy_tolerance", "resonance_tolerance", "coupling_tolerance",
-                 "linear_solver", "max_modes", "step")
+                 "linear_solver", "deflation", "max_modes", "step")
 STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance")
 OUTPUT_KEYS = ("dir", "name", "hdf5", "plot")
 _LABEL = re.compile(r"^\s*\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*$")
@@ -70,6 +73,7 @@ class Scene:
     degeneracy_tolerance: float = 1e-3
     tolerances: Tolerances = field(default_factory=Tolerances)
     linear_solver: str = "auto"
+    deflation: bool = True
     max_modes: int = 400
     step: StepPolicy = field(default_factory=StepPolicy)
     output_dir: Path = Path("results")
@@ -186,6 +190,10 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
     sc.tolerances = Tolerances(**tol)
     if "linear_solver" in an:
         sc.linear_solver = _choice(f, "analysis.linear_solver", an["linear_solver"], BACKENDS)
+    if "deflation" in an:
+        if not isinstance(an["deflation"], bool):
+            raise SceneError(f, "analysis.deflation", f"expected true or false, got {an['deflation']!r}")
+        sc.deflation = an["deflation"]
     if "max_modes" in an:
         sc.max_modes = _number(f, "analysis.max_modes", an["max_modes"], integer=True, lo=2)
     step = an.get("step", {})
