@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
@@ -99,7 +100,9 @@ def _factorize(A, backend: str, counters: Counters | None, label: str) -> Factor
     kind = choose_backend(n, backend)
     if kind == "dense":
         Ad = A.toarray() if sp.issparse(A) else np.asarray(A, dtype=float)
-        lu = sla.lu_factor(Ad, check_finite=True)
+        with warnings.catch_warnings():  # a singular matrix is reported below as a NumericalError
+            warnings.simplefilter("ignore", sla.LinAlgWarning)
+            lu = sla.lu_factor(Ad, check_finite=True)
         if np.min(np.abs(np.diag(lu[0]))) == 0.0:
             raise NumericalError(f"{label or 'matrix'} is exactly singular")
         return Factorization(lambda b: sla.lu_solve(lu, b), n, kind, counters, label)
