@@ -1,0 +1,406 @@
+"""Implementation of the ``calculix`` adapter (see the package docstring for the scene keys)."""
+from __future__ import annotations
+
+import math
+import time
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from stepnf.errors import SceneError, allowed
+from stepnf.external import CommandTemplate, ExternalSolverAdapter, KEEP_POLICIES, missing_output, require_files
+
+from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
+from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
+
+#: Scene keys of ``[model]`` (besides ``solver``).
+MODEL_KEYS = ("element", "geometry", "material", "mesh", "template", "executable", "timeout",
+              "workdir", "keep", "threads", "parallel_runs")
+#: Largest number of ``*BOUNDARY`` lines (fields x dofs) in one deck; bigger batches are split over runs.
+MAX_BOUNDARY_LINES = 4_000_000
+GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_core", "n_ring", "n_thick", "core")
+MATERIAL_KEYS = ("E", "nu", "rho")
+ELEMENTS = ("hex20",)
+SHAPES = ("spherical_cap",)
+
+
+def shipped_template(name: str) -> CommandTemplate:
+    """A template shipped with the adapter (``templates/calculix/<name>`` of the source tree)."""
+    res = resources.files("stepnf_calculix").joinpath("templates", name)
+    return CommandTemplate(res.read_text(encoding="utf-8"), source=f"stepnf_calculix/templates/{name}")
+
+
+
+def _labeler_class():
+    """The (k, n) mode labeler shared with the fenicsx adapter (pure numpy/scipy), or ``None``."""
+    import importlib
+
+    for module in ("stepnf.labels", "stepnf_fenicsx.labels"):
+        try:
+            return importlib.import_module(module).ModeLabeler
+        except (ImportError, AttributeError):
+            continue
+    return None
+
+class CalculixAdapter(ExternalSolverAdapter):
+    """A solid model run by CalculiX ``ccx`` as a black box.
+
+    Dofs: ``ux, uy, uz`` of every node, node by node in the order of
+    ``node_ids`` (dof ``3 i + d``); no dof is constrained (free structures;
+    K has the rigid-body modes in its null space).
+
+    Parameters
+    ----------
+    node_ids : (N,) CalculiX node numbers
+    points : (N, 3) coordinates (model length unit)
+    blocks : ``[(ccx element type, element ids (E,), connectivity (E, k) in node ids, ccx order)]``
+    material : ``{"E", "nu", "rho"}`` (needed by the shipped template)
+    template : a user's job template (path) instead of the shipped ``job.inp``
+    geometry : ``{"shape", "a", "R", "h"}`` for a generated cap (scales, Gamma)
+    midsurface : (N,) bool, nodes on the mid-surface (for :meth:`transverse_amplitude`)
+    threads : ``OMP_NUM_THREADS`` of the ccx runs (default: the environment's)
+    executable, timeout, workdir, keep : see :class:`stepnf.external.ExternalSolverAdapter`
+    """
+
+    name = "calculix"
+    program = "ccx"
+    #: :meth:`tangent_stiffness` and :meth:`sharp_step` are available (14-digit tangents).
+    provides_tangent_stiffness = True
+
+    def __init__(
+        self,
+        node_ids: np.ndarray,
+        points: np.ndarray,
+        blocks: Sequence[tuple[str, np.ndarray, np.ndarray]],
+        *,
+        material: Mapping[str, float] | None = None,
+        template: str | Path | None = None,
+        geometry: Mapping[str, Any] | None = None,
+        midsurface: np.ndarray | None = None,
+        threads: int | None = None,
+        **run: Any,
+    ):
+        super().__init__(**run)
+        self.node_ids = np.asarray(node_ids, dtype=np.int64)
+        self.points = np.asarray(points, dtype=float)
+        self.blocks = [(t, np.asarray(e, np.int64), np.asarray(c, np.int64)) for t, e, c in blocks]
+        self.material = dict(material or {})
+        self.job_template = CommandTemplate.from_file(template) if template else shipped_template("job.inp")
+        self.step_template = shipped_template("force_step.inp")
+        self.matrix_template = shipped_template("matrix_step.inp")
+        for key in ("mesh_file", "steps"):
+            if key not in self.job_template.placeholders:
+                raise ValueError(f"{self.job_template.source}: the job template needs the placeholder ${{{key}}}")
+        need = [k for k in MATERIAL_KEYS if k in self.job_template.placeholders and k not in self.material]
+        if need:
+            raise ValueError(f"{self.job_template.source} uses material constants {need}; give them in [model.material]")
+        self.geometry = dict(geometry or {})
+        self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
+        self.threads = threads
+        self._vtk_cells: np.ndarray | None = None  # set by from_volume_mesh (mid-surface sampling)
+        self._sampler = None
+        self._mesh = mesh_text(self.node_ids, self.points, self.blocks)
+        self.max_fields_per_run = max(1, MAX_BOUNDARY_LINES // self.n_dofs)
+        self._pos = np.full(int(self.node_ids.max()) + 1, -1)
+        self._pos[self.node_ids] = np.arange(len(self.node_ids))
+        self._K: sp.csr_matrix | None = None
+        self._M: sp.csr_matrix | None = None
+        self.timings: dict[str, float] = {}
+
+    # ------------------------------------------------------------ builders
+    @classmethod
+    def from_volume_mesh(cls, mesh: Any, **kw: Any) -> "CalculixAdapter":
+        """From a :class:`stepnf.geometry.VolumeMesh` (or anything with ``points``, ``cells``, ``cell_type``)."""
+        if mesh.cell_type not in CCX_ELEMENTS:
+            raise ValueError(f"cell type {mesh.cell_type!r} has no CalculiX element here. Pick one of {list(CCX_ELEMENTS)}")
+        ccx_type, perm = CCX_ELEMENTS[mesh.cell_type]
+        ids = np.arange(1, len(mesh.points) + 1)
+        conn = np.asarray(mesh.cells)[:, perm] + 1
+        kw.setdefault("midsurface", getattr(mesh, "midsurface", None))
+        ad = cls(ids, mesh.points, [(ccx_type, np.arange(1, len(conn) + 1), conn)], **kw)
+        ad._vtk_cells = np.asarray(mesh.cells, dtype=np.int64)
+        return ad
+
+    @classmethod
+    def from_cap(cls, *, a: float, R: float, h: float, E: float, nu: float, rho: float,
+                 resolution: Mapping[str, Any] | None = None, **kw: Any) -> "CalculixAdapter":
+        """A free-edge spherical cap (``R = inf``: flat plate) meshed with C3D20 (:func:`stepnf.geometry.spherical_cap`)."""
+        from stepnf.geometry import spherical_cap
+
+        mesh = spherical_cap(a, R, h, element="hex20", **dict(resolution or {}))
+        geom = {"shape": "spherical_cap", "a": a, "R": R, "h": h, **dict(resolution or {})}
+        return cls.from_volume_mesh(mesh, material={"E": E, "nu": nu, "rho": rho}, geometry=geom, **kw)
+
+    @classmethod
+    def from_inp(cls, path: str | Path, **kw: Any) -> "CalculixAdapter":
+        """A user's mesh from an ``.inp`` file (see :mod:`.inpmesh`)."""
+        from .inpmesh import read_inp_mesh
+
+        m = read_inp_mesh(path)
+        return cls(m.node_ids, m.points, m.blocks, **kw)
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
+                    ) -> "CalculixAdapter":
+        """Build from the scene's ``[model]`` table (keys in the package docstring)."""
+        return _from_config(cls, dict(config), Path(base_dir), scene_file)
+
+    # ----------------------------------------------------------- protocol
+    @property
+    def n_dofs(self) -> int:
+        return 3 * len(self.node_ids)
+
+    def mass_matrix(self) -> sp.csr_matrix:
+        self._matrices()
+        return self._M
+
+    def stiffness_matrix(self) -> sp.csr_matrix:
+        self._matrices()
+        return self._K
+
+    def dof_coordinates(self) -> np.ndarray:
+        return np.repeat(self.points, 3, axis=0)
+
+    def dof_directions(self) -> np.ndarray:
+        return np.tile(np.arange(3), len(self.node_ids))
+
+    def characteristic_length(self) -> float | None:
+        if "h" in self.geometry:
+            return float(self.geometry["h"])
+        return super().characteristic_length()
+
+    def shell_scales(self):
+        g, m = self.geometry, self.material
+        if g.get("shape") != "spherical_cap" or not all(k in m for k in MATERIAL_KEYS):
+            return None
+        from stepnf.shell import ShellScales
+
+        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])
+
+    def transverse_amplitude(self, phi: np.ndarray) -> float | None:
+        """Largest |normal displacement| over the mid-surface (3 x 3 points per element, see :mod:`.midsurface`)."""
+        if self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
+            return None
+        from stepnf.geometry import outward_normals
+
+        U = np.asarray(phi, dtype=float).reshape(-1, 3)
+        if self._vtk_cells is not None:
+            if self._sampler is None:
+                from .midsurface import midsurface_sampler
+
+                W, X = midsurface_sampler(self.points, self._vtk_cells, self.midsurface)
+                self._sampler = (W, outward_normals(X, float(self.geometry["R"])))
+            W, normals = self._sampler
+            if W.shape[0]:
+                return float(np.max(np.abs(np.einsum("ij,ij->i", W @ U, normals))))
+        sel = self.midsurface
+        w = np.einsum("ij,ij->i", U[sel], outward_normals(self.points[sel], float(self.geometry["R"])))
+        return float(np.max(np.abs(w)))
+
+    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
+        """(k, n) labels of cap modes (via the shared ModeLabeler), else ``None`` per mode."""
+        Phi = np.asarray(Phi, dtype=float)
+        Labeler = _labeler_class()
+        if Labeler is None or self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
+            return [None] * Phi.shape[1]
+        if getattr(self, "_labeler", None) is None:
+            from stepnf.geometry import outward_normals
+
+            mid = np.nonzero(self.midsurface)[0]
+            self._labeler = Labeler(self.points[mid, :2], mid, outward_normals(self.points, float(self.geometry["R"])),
+                                    float(self.geometry["a"]))
+        return [self._labeler.label(Phi[:, j].reshape(-1, 3)) for j in range(Phi.shape[1])]
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d.update(
+            solver="CalculiX", executable=self.executable, n_nodes=int(len(self.node_ids)),
+            elements={t: int(len(e)) for t, e, _ in self.blocks}, template=self.job_template.source,
+            material=self.material, geometry={k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
+                                              for k, v in self.geometry.items()},
+            force_precision="7 significant digits (.dat)", solver_runs=len(self.runs),
+        )
+        return d
+
+    # ---------------------------------------------------------------- jobs
+    def run_env(self) -> dict[str, str]:
+        return {} if self.threads is None else {"OMP_NUM_THREADS": str(int(self.threads))}
+
+    def _write_job(self, workdir: Path, job: str, steps: str, title: str) -> list[str]:
+        (workdir / "mesh.inp").write_text(self._mesh)
+        values = {"title": title, "mesh_file": "mesh.inp", "steps": steps}
+        values.update({k: REAL % float(v) for k, v in self.material.items() if k in MATERIAL_KEYS})
+        (workdir / f"{job}.inp").write_text(self.job_template.render(values))
+        return [self.executable, "-i", job]
+
+    def write_force_job(self, workdir: Path, U: np.ndarray) -> list[str]:
+        steps = "\n".join(
+            self.step_template.render(index=i + 1, boundary=format_boundary(self.node_ids, u.reshape(-1, 3)))
+            for i, u in enumerate(U)
+        )
+        return self._write_job(workdir, "forces", steps, f"internal forces of {len(U)} prescribed fields")
+
+    def read_forces(self, workdir: Path, m: int) -> np.ndarray:
+        (dat,) = require_files(workdir, ["forces.dat"], log=workdir / "solver.log", what="ccx")
+        try:
+            F = read_dat_forces(dat, self.node_ids, m)
+        except ResultFormatError as exc:
+            raise missing_output(workdir, f"ccx output incomplete: {exc}") from None
+        return F.reshape(m, -1)
+
+    def _matrices(self) -> None:
+        if self._K is not None:
+            return
+        t0 = time.perf_counter()
+        with self.work_folder(prefix="calculix-matrices-") as wd:
+            argv = self._write_job(wd, "matrices", self.matrix_template.render(), "K and M (matrix storage)")
+            rec = self.run(argv, wd)
+            self._K, self._M = self._read_stored_matrices(wd, "matrices", rec.log)
+        self.timings["matrices"] = time.perf_counter() - t0
+
+    def _read_stored_matrices(self, wd: Path, job: str, log: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        """K and M of a ``SOLVER=MATRIXSTORAGE`` run, in this adapter's dof order."""
+        sti, mas, dof = require_files(wd, [f"{job}.sti", f"{job}.mas", f"{job}.dof"], log=log, what="ccx")
+        nodes, dirs = read_dof(dof)
+        n = self.n_dofs
+        ok = (nodes <= self._pos.size - 1) & (dirs >= 1) & (dirs <= 3)
+        index = np.where(ok, self._pos[np.minimum(nodes, self._pos.size - 1)] * 3 + dirs - 1, -1)
+        if len(index) != n or np.any(index < 0) or len(np.unique(index)) != n:
+            raise missing_output(
+                wd, f"{job}.dof lists {len(index)} dofs, expected the {n} = 3 x {n // 3} nodal translations"
+            )
+        return _permute(read_matrix(sti, n), index), _permute(read_matrix(mas, n), index)
+
+    # -------------------------------------------------- tangent stiffness
+    def tangent_stiffness(self, u: np.ndarray) -> sp.csr_matrix:
+        """Tangent stiffness ``df/du`` at the displacement ``u`` (n,), 14 digits (one ccx run).
+
+        An NLGEOM step prescribes ``u``; a ``*STEP, PERTURBATION`` then stores
+        the tangent at that state. For the exact cubic f of this model,
+        ``K_T(u) = K + 2 G(u, .) + 3 H(u, u, .)``.
+        """
+        u = self._check_field(u)
+        tpl = shipped_template("tangent_step.inp")
+        with self.work_folder(prefix="calculix-tangent-") as wd:
+            steps = tpl.render(boundary=format_boundary(self.node_ids, u.reshape(-1, 3)))
+            argv = self._write_job(wd, "tangent", steps, "tangent stiffness at a prescribed field")
+            rec = self.run(argv, wd)
+            KT, _ = self._read_stored_matrices(wd, "tangent", rec.log)
+        return KT
+
+    def sharp_step(self, phi: np.ndarray, q: float) -> tuple[np.ndarray, float]:
+        """``G(phi, phi)`` (n,) and ``phi . H(phi, phi, phi)`` from the tangents at ``+-q phi`` (two ccx runs).
+
+        ``K_T(q phi) - K_T(-q phi) = 4 q G(phi, .)`` and
+        ``K_T(q phi) + K_T(-q phi) - 2 K = 6 q^2 H(phi, phi, .)`` hold exactly
+        for a cubic f, and the tangents carry 14 digits where the printed
+        forces carry 7: use this to sharpen STEP's cubic terms.
+        """
+        phi = self._check_field(phi)
+        Kp, Km = self.tangent_stiffness(q * phi), self.tangent_stiffness(-q * phi)
+        Gv = (Kp - Km) @ phi / (4.0 * q)
+        h = float(phi @ ((Kp + Km - 2.0 * self.stiffness_matrix()) @ phi)) / (6.0 * q * q)
+        return Gv, h
+
+    def _internal_forces(self, U: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
+        F = super()._internal_forces(U)
+        self.timings["forces"] = self.timings.get("forces", 0.0) + time.perf_counter() - t0
+        return F
+
+
+def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:
+    """Row/column ``r`` of ``A`` becomes row/column ``index[r]``."""
+    C = A.tocoo()
+    return sp.csr_matrix((C.data, (index[C.row], index[C.col])), shape=A.shape)
+
+
+# ------------------------------------------------------------------ scene
+def _num(config: Mapping[str, Any], table: str, key: str, scene_file, *, positive: bool = True,
+         allow_inf: bool = False) -> float:
+    v = config.get(key)
+    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
+        kind = "a positive number" + (' or "inf"' if allow_inf else "")
+        raise SceneError(scene_file, f"{table}.{key}", f"expected {kind}, got {v!r}")
+    return float(v)
+
+
+def _check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene_file) -> None:
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
+
+
+def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapter:
+    _check_keys(config, MODEL_KEYS, "model", scene_file)
+    run: dict[str, Any] = {}
+    if "executable" in config:
+        run["executable"] = str(config["executable"])
+    if "timeout" in config:
+        run["timeout"] = _num(config, "model", "timeout", scene_file)
+    if "workdir" in config:
+        run["workdir"] = base_dir / str(config["workdir"])
+    if "keep" in config:
+        if config["keep"] not in KEEP_POLICIES:
+            raise SceneError(scene_file, "model.keep", f"got {config['keep']!r}. Pick one of {allowed(KEEP_POLICIES)}")
+        run["keep"] = config["keep"]
+    for key in ("threads", "parallel_runs"):
+        if key in config:
+            t = config[key]
+            if isinstance(t, bool) or not isinstance(t, int) or t < 1:
+                raise SceneError(scene_file, f"model.{key}", f"expected a positive integer, got {t!r}")
+            run[key] = t
+    if "template" in config:
+        tpl = base_dir / str(config["template"])
+        if not tpl.is_file():
+            raise SceneError(scene_file, "model.template", f"template file {tpl} does not exist")
+        run["template"] = tpl
+
+    mat = config.get("material", {})
+    if not isinstance(mat, Mapping):
+        raise SceneError(scene_file, "model.material", "expected a table with E, nu, rho")
+    _check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
+    material = {}
+    for k in MATERIAL_KEYS:
+        if k in mat:
+            material[k] = _num(mat, "model.material", k, scene_file)
+    if "nu" in material and not material["nu"] < 0.5:
+        raise SceneError(scene_file, "model.material.nu", f"expected 0 < nu < 0.5, got {material['nu']}")
+
+    element = config.get("element", "hex20")
+    if element not in ELEMENTS:
+        raise SceneError(scene_file, "model.element", f"got {element!r}; CalculiX meshes shells with 20-node "
+                         f"bricks (C3D20). Pick one of {allowed(ELEMENTS)}")
+    has_mesh, has_geom = "mesh" in config, "geometry" in config
+    if has_mesh == has_geom:
+        raise SceneError(scene_file, "model", "give exactly one of mesh = \"file.inp\" or a [model.geometry] table")
+    try:
+        if has_mesh:
+            path = base_dir / str(config["mesh"])
+            if path.suffix.lower() != ".inp" or not path.is_file():
+                raise SceneError(scene_file, "model.mesh", f"expected an existing .inp file, got {str(path)!r}")
+            return cls.from_inp(path, material=material, **run)
+        geom = config["geometry"]
+        if not isinstance(geom, Mapping):
+            raise SceneError(scene_file, "model.geometry", "expected a table")
+        _check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
+        shape = geom.get("shape", "spherical_cap")
+        if shape not in SHAPES:
+            raise SceneError(scene_file, "model.geometry.shape", f"got {shape!r}. Pick one of {allowed(SHAPES)}")
+        missing = [k for k in MATERIAL_KEYS if k not in material]
+        if missing:
+            raise SceneError(scene_file, "model.material", f"missing {missing}; a generated cap needs E, nu, rho")
+        a = _num(geom, "model.geometry", "a", scene_file)
+        R = _num(geom, "model.geometry", "R", scene_file, allow_inf=True)
+        h = _num(geom, "model.geometry", "h", scene_file)
+        resolution = {k: geom[k] for k in ("n_core", "n_ring", "n_thick", "core") if k in geom}
+        return cls.from_cap(a=a, R=R, h=h, resolution=resolution, **material, **run)
+    except ValueError as exc:
+        if isinstance(exc, SceneError):
+            raise
+        raise SceneError(scene_file, "model", str(exc)) from exc

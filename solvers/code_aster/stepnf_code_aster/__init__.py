@@ -1,0 +1,48 @@
+"""The ``code_aster`` solver adapter: code_aster driven as a black box through command templates.
+
+Internal forces: ONE code_aster run per batch of displacement fields. stepnf
+writes the mesh and the fields into ``model.med`` (field ``U``: zero at time
+0, field i at time i), renders ``forces.comm`` (``LIRE_RESU`` of the fields,
+``AFFE_CHAR_CINE(EVOL_IMPO=...)`` imposing every dof of every node, one
+``STAT_NON_LINE`` with ``DEFORMATION="GROT_GDEP"``, ``RELATION="ELAS"``,
+``CALC_CHAMP(FORCE="FORC_NODA")``, ``IMPR_RESU`` to MED) and
+``forces.export``, runs the command (default ``run_aster ${export}``) and reads
+``FORC_NODA`` back from the MED result with h5py (float64: no loss of
+digits). K and M: ``matrices.comm`` (``ASSEMBLAGE`` of ``RIGI_MECA`` and
+``MASS_MECA``, exported with ``EXTR_MATR(sparse=True)`` and the dof map to an
+``.npz``; code_aster >= 16).
+
+Scene keys (``[model]``)::
+
+    solver = "code_aster"
+    element = "hex20"                 # generated shells: HEXA20
+    [model.geometry]                  # same keys as the fenicsx and calculix adapters
+    shape = "spherical_cap"
+    a = 0.15
+    R = 1.5                           # "inf": flat plate
+    h = 0.003
+    [model.material]
+    E = 1.04e11
+    nu = 0.3
+    rho = 4400.0
+
+or ``mesh = "part.med"`` (a user's MED volume mesh; ``mesh_name`` picks one
+of several meshes). Run keys: ``command`` (e.g. ``"docker run --rm -v
+${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
+(a folder whose ``forces.comm``, ``forces.export``, ``matrices.comm`` or
+``matrices.export`` replace the shipped ones), ``version``, ``ncpus``,
+``memory_mb`` (``.export`` parameters), ``timeout``, ``workdir``, ``keep``,
+``parallel_runs`` (code_aster runs at a time, each on a share of a batch).
+
+MED helpers (:mod:`.med`): :func:`read_nodal_steps`, :func:`list_fields`,
+:func:`write_med`, :func:`add_nodal_field`.
+"""
+from __future__ import annotations
+
+from .adapter import CodeAsterAdapter, shipped_template, triplets_to_matrix
+from .med import (MedError, NodalStep, add_nodal_field, list_fields, read_mesh_nodes, read_nodal_field,
+                  read_nodal_steps, read_profile, write_med)
+
+__all__ = ["CodeAsterAdapter", "shipped_template", "triplets_to_matrix", "MedError", "NodalStep",
+           "add_nodal_field", "list_fields", "read_mesh_nodes", "read_nodal_field", "read_nodal_steps",
+           "read_profile", "write_med"]

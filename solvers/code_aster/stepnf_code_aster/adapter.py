@@ -1,0 +1,401 @@
+"""Implementation of the ``code_aster`` adapter (see the package docstring for the scene keys)."""
+from __future__ import annotations
+
+import math
+import shlex
+import shutil
+import time
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from stepnf.errors import SceneError, SolverRunError, allowed
+from stepnf.external import KEEP_POLICIES, CommandTemplate, ExternalSolverAdapter, missing_output, require_files
+
+from .med import MedError, add_nodal_field, read_mesh_nodes, read_nodal_steps, write_med
+
+MODEL_KEYS = ("element", "geometry", "material", "mesh", "mesh_name", "templates", "command", "version",
+              "ncpus", "memory_mb", "timeout", "workdir", "keep", "parallel_runs")
+GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_core", "n_ring", "n_thick", "core")
+MATERIAL_KEYS = ("E", "nu", "rho")
+ELEMENTS = ("hex20",)
+TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export")
+COMPONENTS = ("DX", "DY", "DZ")
+#: Default command; ``${export}`` and ``${workdir}`` are filled in. A docker image works too, e.g.
+#: ``docker run --rm -v ${workdir}:${workdir} IMAGE run_aster ${export}``.
+DEFAULT_COMMAND = "run_aster ${export}"
+FIELD_IN, FIELD_OUT = "U", "F"
+REAL = "%.17g"
+
+
+def shipped_template(name: str) -> CommandTemplate:
+    """A template shipped with the adapter (``templates/code_aster/<name>`` of the source tree)."""
+    res = resources.files("stepnf_code_aster").joinpath("templates", name)
+    return CommandTemplate(res.read_text(encoding="utf-8"), source=f"stepnf_code_aster/templates/{name}")
+
+
+def triplets_to_matrix(values, rows, cols, n: int) -> sp.csr_matrix:
+    """Sparse (n, n) from 0-based triplets; one stored triangle of a symmetric matrix is mirrored."""
+    values = np.asarray(values, float)
+    rows = np.asarray(rows, np.int64)
+    cols = np.asarray(cols, np.int64)
+    if values.size and (np.all(rows >= cols) or np.all(rows <= cols)):
+        off = rows != cols
+        rows, cols, values = (np.concatenate([rows, cols[off]]), np.concatenate([cols, rows[off]]),
+                              np.concatenate([values, values[off]]))
+    return sp.csr_matrix((values, (rows, cols)), shape=(n, n))
+
+
+
+def _labeler_class():
+    """The (k, n) mode labeler shared with the fenicsx adapter (pure numpy/scipy), or ``None``."""
+    import importlib
+
+    for module in ("stepnf.labels", "stepnf_fenicsx.labels"):
+        try:
+            return importlib.import_module(module).ModeLabeler
+        except (ImportError, AttributeError):
+            continue
+    return None
+
+class CodeAsterAdapter(ExternalSolverAdapter):
+    """A solid model run by code_aster as a black box (``run_aster`` or a docker image).
+
+    Dofs: ``DX, DY, DZ`` of every node of the MED mesh, node by node (dof
+    ``3 i + d``); nothing constrained (free structures). Forces come back
+    from MED in float64 (full precision), K and M from an ``.npz`` export.
+
+    Parameters
+    ----------
+    points : (N, 3) node coordinates of the mesh
+    material : ``{"E", "nu", "rho"}``
+    mesh_file : a user's MED mesh (copied into each work folder) or ``None``
+    cells, cell_type : the mesh to write when ``mesh_file`` is ``None`` (VTK order)
+    mesh_name : name of the mesh inside the MED file
+    templates : folder with user templates overriding the shipped ones (any of
+        ``forces.comm``, ``forces.export``, ``matrices.comm``, ``matrices.export``)
+    command : command template (``${export}``, ``${workdir}``)
+    version, ncpus, memory_mb : ``.export`` parameters
+    geometry, midsurface : as for the other shell adapters (scales, Gamma)
+    executable, timeout, workdir, keep : see :class:`stepnf.external.ExternalSolverAdapter`
+    """
+
+    name = "code_aster"
+    program = "run_aster"
+
+    def __init__(self, points: np.ndarray, *, material: Mapping[str, float], cells: np.ndarray | None = None,
+                 cell_type: str = "hexahedron20", mesh_file: str | Path | None = None, mesh_name: str = "mesh",
+                 templates: str | Path | None = None, command: str = DEFAULT_COMMAND, version: str = "stable",
+                 ncpus: int = 1, memory_mb: int = 4096, geometry: Mapping[str, Any] | None = None,
+                 midsurface: np.ndarray | None = None, **run: Any):
+        cmd = CommandTemplate(command, source="[model] command")
+        if not cmd.text.split():
+            raise ValueError("empty code_aster command")
+        run.setdefault("executable", shlex.split(command)[0])
+        super().__init__(**run)
+        self.points = np.asarray(points, dtype=float)
+        self.cells = None if cells is None else np.asarray(cells, dtype=np.int64)
+        self.cell_type = cell_type
+        self.mesh_file = None if mesh_file is None else Path(mesh_file)
+        if self.mesh_file is None and self.cells is None:
+            raise ValueError("give either a MED mesh file or cells to write")
+        self.mesh_name = mesh_name
+        self.material = {k: float(material[k]) for k in MATERIAL_KEYS}
+        self.command = cmd
+        self.export_values = {"version": version, "ncpus": int(ncpus), "memory_mb": int(memory_mb)}
+        self.templates = {name: self._template(name, templates) for name in TEMPLATE_NAMES}
+        self.geometry = dict(geometry or {})
+        self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
+        self._K: sp.csr_matrix | None = None
+        self._M: sp.csr_matrix | None = None
+        self._sampler = None
+        self.timings: dict[str, float] = {}
+
+    @staticmethod
+    def _template(name: str, folder: str | Path | None) -> CommandTemplate:
+        if folder is not None and (Path(folder) / name).is_file():
+            return CommandTemplate.from_file(Path(folder) / name)
+        return shipped_template(name)
+
+    # ------------------------------------------------------------- builders
+    @classmethod
+    def from_volume_mesh(cls, mesh: Any, **kw: Any) -> "CodeAsterAdapter":
+        """From a :class:`stepnf.geometry.VolumeMesh` (hexahedron20)."""
+        if mesh.cell_type != "hexahedron20":
+            raise ValueError(f"cell type {mesh.cell_type!r} not supported here. Pick one of ['hexahedron20']")
+        kw.setdefault("midsurface", getattr(mesh, "midsurface", None))
+        return cls(mesh.points, cells=mesh.cells, cell_type=mesh.cell_type, **kw)
+
+    @classmethod
+    def from_cap(cls, *, a: float, R: float, h: float, E: float, nu: float, rho: float,
+                 resolution: Mapping[str, Any] | None = None, **kw: Any) -> "CodeAsterAdapter":
+        """A free-edge spherical cap (``R = inf``: plate) meshed with HEXA20."""
+        from stepnf.geometry import spherical_cap
+
+        mesh = spherical_cap(a, R, h, element="hex20", **dict(resolution or {}))
+        geom = {"shape": "spherical_cap", "a": a, "R": R, "h": h, **dict(resolution or {})}
+        return cls.from_volume_mesh(mesh, material={"E": E, "nu": nu, "rho": rho}, geometry=geom, **kw)
+
+    @classmethod
+    def from_med(cls, path: str | Path, *, mesh_name: str | None = None, **kw: Any) -> "CodeAsterAdapter":
+        """A user's MED volume mesh."""
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            name = mesh_name or next(iter(f["ENS_MAA"]))
+        return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, **kw)
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
+                    ) -> "CodeAsterAdapter":
+        return _from_config(cls, dict(config), Path(base_dir), scene_file)
+
+    # ------------------------------------------------------------- protocol
+    @property
+    def n_dofs(self) -> int:
+        return 3 * len(self.points)
+
+    def mass_matrix(self) -> sp.csr_matrix:
+        self._matrices()
+        return self._M
+
+    def stiffness_matrix(self) -> sp.csr_matrix:
+        self._matrices()
+        return self._K
+
+    def dof_coordinates(self) -> np.ndarray:
+        return np.repeat(self.points, 3, axis=0)
+
+    def dof_directions(self) -> np.ndarray:
+        return np.tile(np.arange(3), len(self.points))
+
+    def characteristic_length(self) -> float | None:
+        if "h" in self.geometry:
+            return float(self.geometry["h"])
+        return super().characteristic_length()
+
+    def shell_scales(self):
+        g = self.geometry
+        if g.get("shape") != "spherical_cap":
+            return None
+        from stepnf.shell import ShellScales
+
+        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], **self.material)
+
+    def transverse_amplitude(self, phi: np.ndarray) -> float | None:
+        """Largest |normal displacement| over the mid-surface (3 x 3 points per element, see :mod:`.midsurface`)."""
+        if self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
+            return None
+        from stepnf.geometry import outward_normals
+
+        U = np.asarray(phi, dtype=float).reshape(-1, 3)
+        if self.cells is not None and self.cell_type == "hexahedron20":
+            if self._sampler is None:
+                from .midsurface import midsurface_sampler
+
+                W, X = midsurface_sampler(self.points, self.cells, self.midsurface)
+                self._sampler = (W, outward_normals(X, float(self.geometry["R"])))
+            W, normals = self._sampler
+            if W.shape[0]:
+                return float(np.max(np.abs(np.einsum("ij,ij->i", W @ U, normals))))
+        sel = self.midsurface
+        w = np.einsum("ij,ij->i", U[sel], outward_normals(self.points[sel], float(self.geometry["R"])))
+        return float(np.max(np.abs(w)))
+
+    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
+        """(k, n) labels of cap modes (via the shared ModeLabeler), else ``None`` per mode."""
+        Phi = np.asarray(Phi, dtype=float)
+        Labeler = _labeler_class()
+        if Labeler is None or self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
+            return [None] * Phi.shape[1]
+        if getattr(self, "_labeler", None) is None:
+            from stepnf.geometry import outward_normals
+
+            mid = np.nonzero(self.midsurface)[0]
+            self._labeler = Labeler(self.points[mid, :2], mid, outward_normals(self.points, float(self.geometry["R"])),
+                                    float(self.geometry["a"]))
+        return [self._labeler.label(Phi[:, j].reshape(-1, 3)) for j in range(Phi.shape[1])]
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d.update(solver="code_aster", command=self.command.text, n_nodes=int(len(self.points)),
+                 material=self.material, solver_runs=len(self.runs),
+                 geometry={k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
+                           for k, v in self.geometry.items()},
+                 templates={k: t.source for k, t in self.templates.items()})
+        return d
+
+    # ----------------------------------------------------------------- jobs
+    def _values(self, workdir: Path, job: str, n_fields: int = 0) -> dict[str, Any]:
+        vals: dict[str, Any] = {
+            "mesh_name": self.mesh_name, "field_in": FIELD_IN, "field_out": FIELD_OUT,
+            "n_fields": int(n_fields), "max_iterations": 10, "workdir": str(workdir),
+            "matrices_file": str(workdir / "matrices.npz"), "export": str(workdir / f"{job}.export"),
+            "time_limit": int(self.timeout) if self.timeout else 86400,
+            **{k: REAL % v for k, v in self.material.items()}, **self.export_values,
+        }
+        return vals
+
+    def _write_model(self, workdir: Path, U: np.ndarray | None = None) -> None:
+        target = workdir / "model.med"
+        steps = None
+        if U is not None:
+            n = len(self.points)
+            steps = [(0.0, np.zeros((n, 3)))] + [(float(i + 1), u.reshape(n, 3)) for i, u in enumerate(U)]
+        if self.mesh_file is not None:
+            shutil.copyfile(self.mesh_file, target)
+            if steps is not None:
+                add_nodal_field(target, FIELD_IN, COMPONENTS, steps, mesh_name=self.mesh_name)
+        else:
+            write_med(target, self.points, self.cells, self.cell_type, mesh_name=self.mesh_name,
+                      fields=None if steps is None else {FIELD_IN: (COMPONENTS, steps)})
+
+    def render_job(self, workdir: Path, job: str, n_fields: int = 0) -> list[str]:
+        """Write ``<job>.comm`` and ``<job>.export`` into ``workdir``; return the command."""
+        vals = self._values(workdir, job, n_fields)
+        (workdir / f"{job}.comm").write_text(self.templates[f"{job}.comm"].render(vals))
+        (workdir / f"{job}.export").write_text(self.templates[f"{job}.export"].render(vals))
+        return shlex.split(self.command.render(vals))
+
+    def run(self, argv, workdir, *, log_name="solver.log"):
+        """Run the command; a missing executable gets a hint about docker images."""
+        if shutil.which(self.executable) is None and not Path(self.executable).is_file():
+            raise SolverRunError(
+                f"code_aster command {self.executable!r} not found: install code_aster (run_aster on PATH) or "
+                f"run it from an image with [model] command = \"docker run --rm -v ${{workdir}}:${{workdir}} "
+                f"<code_aster image> run_aster ${{export}}\"", workdir=workdir)
+        return super().run(argv, workdir, log_name=log_name)
+
+    def write_force_job(self, workdir: Path, U: np.ndarray) -> list[str]:
+        self._write_model(workdir, U)
+        return self.render_job(workdir, "forces", len(U))
+
+    def read_forces(self, workdir: Path, m: int) -> np.ndarray:
+        (rmed,) = require_files(workdir, ["forces.rmed"], log=workdir / "solver.log", what="code_aster")
+        try:
+            steps = read_nodal_steps(rmed, FIELD_OUT)
+        except MedError as exc:
+            raise missing_output(workdir, f"code_aster output incomplete: {exc}") from None
+        by_time = {int(round(s.time)): s for s in steps if abs(s.time - round(s.time)) < 1e-9}
+        n = len(self.points)
+        F = np.empty((m, 3 * n))
+        for i in range(1, m + 1):
+            s = by_time.get(i)
+            if s is None:
+                raise missing_output(workdir, f"forces.rmed: field {FIELD_OUT!r} has no step at time {i} "
+                                              f"(of {m}); found times {sorted(by_time)[:10]}")
+            idx = [s.components.index(c) if c in s.components else -1 for c in COMPONENTS]
+            if min(idx) < 0:
+                raise missing_output(workdir, f"forces.rmed: field {FIELD_OUT!r} lacks components "
+                                              f"{[c for c, j in zip(COMPONENTS, idx) if j < 0]}")
+            F[i - 1] = s.full(n)[:, idx].ravel()
+        return F
+
+    def _matrices(self) -> None:
+        if self._K is not None:
+            return
+        t0 = time.perf_counter()
+        with self.work_folder(prefix="code_aster-matrices-") as wd:
+            self._write_model(wd)
+            argv = self.render_job(wd, "matrices")
+            rec = self.run(argv, wd)
+            (npz,) = require_files(wd, ["matrices.npz"], log=rec.log, what="code_aster")
+            self._K, self._M = self._read_matrices(npz, wd)
+        self.timings["matrices"] = time.perf_counter() - t0
+
+    def _read_matrices(self, path: Path, workdir: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+        with np.load(path, allow_pickle=False) as z:
+            n_eq = int(z["n"])
+            nodes = np.asarray(z["dof_nodes"], dtype=np.int64)
+            comps = [str(c).strip() for c in z["dof_components"]]
+            K = triplets_to_matrix(z["K_values"], z["K_rows"], z["K_cols"], n_eq)
+            M = triplets_to_matrix(z["M_values"], z["M_rows"], z["M_cols"], n_eq)
+        code = {c: i for i, c in enumerate(COMPONENTS)}
+        index = np.array([3 * nd + code.get(c, -10 ** 9) for nd, c in zip(nodes, comps)], dtype=np.int64)
+        n = self.n_dofs
+        if n_eq != n or len(index) != n or index.min() < 0 or len(np.unique(index)) != n:
+            raise missing_output(workdir, f"matrices.npz: {n_eq} equations ({sorted(set(comps))}), expected "
+                                          f"the {n} translations DX DY DZ of {n // 3} nodes and nothing else")
+        perm = lambda A: sp.csr_matrix((A.tocoo().data, (index[A.tocoo().row], index[A.tocoo().col])), shape=(n, n))
+        return perm(K), perm(M)
+
+
+# ------------------------------------------------------------------ scene
+def _num(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False) -> float:
+    v = table.get(key)
+    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        kind = 'a positive number or "inf"' if allow_inf else "a positive number"
+        raise SceneError(scene_file, f"{where}.{key}", f"expected {kind}, got {v!r}")
+    return float(v)
+
+
+def _check_keys(table: Mapping[str, Any], known, where: str, scene_file) -> None:
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
+
+
+def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdapter:
+    _check_keys(config, MODEL_KEYS, "model", scene_file)
+    kw: dict[str, Any] = {}
+    for key in ("command", "version", "mesh_name"):
+        if key in config:
+            if not isinstance(config[key], str) or not config[key].strip():
+                raise SceneError(scene_file, f"model.{key}", f"expected a non-empty string, got {config[key]!r}")
+            kw[key] = config[key]
+    for key in ("ncpus", "memory_mb", "parallel_runs"):
+        if key in config:
+            v = config[key]
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise SceneError(scene_file, f"model.{key}", f"expected a positive integer, got {v!r}")
+            kw[key] = v
+    if "timeout" in config:
+        kw["timeout"] = _num(config, "model", "timeout", scene_file)
+    if "workdir" in config:
+        kw["workdir"] = base_dir / str(config["workdir"])
+    if "keep" in config:
+        if config["keep"] not in KEEP_POLICIES:
+            raise SceneError(scene_file, "model.keep", f"got {config['keep']!r}. Pick one of {allowed(KEEP_POLICIES)}")
+        kw["keep"] = config["keep"]
+    if "templates" in config:
+        folder = base_dir / str(config["templates"])
+        if not folder.is_dir():
+            raise SceneError(scene_file, "model.templates", f"template folder {folder} does not exist; it may hold "
+                             f"any of {list(TEMPLATE_NAMES)}")
+        kw["templates"] = folder
+    mat = config.get("material")
+    if not isinstance(mat, Mapping):
+        raise SceneError(scene_file, "model.material", "missing table with E, nu, rho")
+    _check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
+    material = {k: _num(mat, "model.material", k, scene_file) for k in MATERIAL_KEYS}
+    element = config.get("element", "hex20")
+    if element not in ELEMENTS:
+        raise SceneError(scene_file, "model.element", f"got {element!r}. Pick one of {allowed(ELEMENTS)}")
+    if ("mesh" in config) == ("geometry" in config):
+        raise SceneError(scene_file, "model", "give exactly one of mesh = \"file.med\" or a [model.geometry] table")
+    try:
+        if "mesh" in config:
+            path = base_dir / str(config["mesh"])
+            if path.suffix.lower() not in (".med", ".rmed", ".mmed") or not path.is_file():
+                raise SceneError(scene_file, "model.mesh", f"expected an existing MED file, got {str(path)!r}")
+            return cls.from_med(path, material=material, **kw)
+        geom = config["geometry"]
+        if not isinstance(geom, Mapping):
+            raise SceneError(scene_file, "model.geometry", "expected a table")
+        _check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
+        if geom.get("shape", "spherical_cap") != "spherical_cap":
+            raise SceneError(scene_file, "model.geometry.shape", f"got {geom.get('shape')!r}. Pick one of ['spherical_cap']")
+        a = _num(geom, "model.geometry", "a", scene_file)
+        R = _num(geom, "model.geometry", "R", scene_file, allow_inf=True)
+        h = _num(geom, "model.geometry", "h", scene_file)
+        res = {k: geom[k] for k in ("n_core", "n_ring", "n_thick", "core") if k in geom}
+        return cls.from_cap(a=a, R=R, h=h, resolution=res, **material, **kw)
+    except ValueError as exc:
+        if isinstance(exc, SceneError):
+            raise
+        raise SceneError(scene_file, "model", str(exc)) from exc

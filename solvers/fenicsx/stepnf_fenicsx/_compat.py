@@ -1,0 +1,118 @@
+"""Every dolfinx call whose spelling changed between versions lives here (written against 0.5.2).
+
+Newer dolfinx (0.6+) renamed ``jit_params`` to ``jit_options``,
+``form_compiler_params`` to ``form_compiler_options``, moved
+``VectorFunctionSpace`` to ``functionspace(mesh, ("Lagrange", k, (3,)))`` and
+made ``create_mesh`` take a basix element; adapt this module only.
+"""
+from __future__ import annotations
+
+import inspect
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+
+#: meshio cell-type name -> (dolfinx cell name, geometry degree, nodes per cell)
+CELLS = {
+    "hexahedron27": ("hexahedron", 2, 27),
+    "hexahedron": ("hexahedron", 1, 8),
+    "tetra10": ("tetrahedron", 2, 10),
+    "tetra": ("tetrahedron", 1, 4),
+}
+
+
+def cache_dir() -> Path:
+    """Folder of FEniCSx's form-compilation cache.
+
+    ``$STEPNF_CACHE_DIR/fenicsx`` when set; else ``<repository>/.cache/fenicsx``
+    when the adapter runs from a source checkout; else ``~/.cache/stepnf/fenicsx``.
+    """
+    env = os.environ.get("STEPNF_CACHE_DIR")
+    if env:
+        root = Path(env)
+    else:
+        repo = Path(__file__).resolve().parents[3]
+        root = repo / ".cache" if (repo / "stepnf").is_dir() and (repo / "solvers").is_dir() \
+            else Path.home() / ".cache" / "stepnf"
+    path = root / "fenicsx"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def comm_self():
+    from mpi4py import MPI
+
+    return MPI.COMM_SELF
+
+
+def create_mesh(points: np.ndarray, cells: np.ndarray, cell_type: str):
+    """A serial dolfinx mesh from meshio-ordered (VTK) cells; returns ``(mesh, original_point_index)``.
+
+    ``original_point_index[i]`` is the row of ``points`` that became geometry node ``i``.
+    """
+    import ufl
+    from dolfinx import cpp, mesh as dmesh
+
+    if cell_type not in CELLS:
+        raise ValueError(f"Unsupported cell type {cell_type!r}. Pick one of {list(CELLS)}")
+    name, degree, n_nodes = CELLS[cell_type]
+    ct = dmesh.CellType.hexahedron if name == "hexahedron" else dmesh.CellType.tetrahedron
+    perm = np.asarray(cpp.io.perm_vtk(ct, n_nodes))
+    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(name), degree))
+    cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64)[:, perm])
+    msh = dmesh.create_mesh(comm_self(), cells, np.ascontiguousarray(points, dtype=float), domain)
+    return msh, np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
+
+
+def vector_space(msh, degree: int):
+    from dolfinx import fem
+
+    return fem.VectorFunctionSpace(msh, ("Lagrange", degree))
+
+
+def form(expr):
+    """Compile a UFL form with the project's cache folder (:func:`cache_dir`)."""
+    from dolfinx import fem
+
+    jit = {"cache_dir": str(cache_dir()), "cffi_extra_compile_args": ["-O2"]}
+    key = "jit_params" if "jit_params" in inspect.signature(fem.form).parameters else "jit_options"
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(max(level, logging.WARNING))  # the C compiler's "running build_ext" chatter
+    try:
+        return fem.form(expr, **{key: jit})
+    finally:
+        root.setLevel(level)
+
+
+def assemble_vector(compiled) -> np.ndarray:
+    """Assemble a linear form into a numpy array (owned dofs, serial)."""
+    from dolfinx import fem
+
+    vec = fem.assemble_vector(compiled)
+    return np.array(vec.array, copy=True)
+
+
+def assemble_matrix(compiled) -> sp.csr_matrix:
+    """Assemble a bilinear form into a scipy CSR matrix (serial, no boundary conditions)."""
+    from dolfinx.fem import petsc
+
+    A = petsc.assemble_matrix(compiled)
+    A.assemble()
+    indptr, indices, data = A.getValuesCSR()
+    n = A.getSize()
+    out = sp.csr_matrix((data.copy(), indices.copy(), indptr.copy()), shape=n)
+    A.destroy()
+    return out
+
+
+def dof_layout(V) -> tuple[np.ndarray, int]:
+    """Coordinates (nodes, 3) of the dof nodes of a blocked space and its block size."""
+    return np.asarray(V.tabulate_dof_coordinates(), dtype=float).copy(), int(V.dofmap.index_map_bs)
+
+
+def set_values(fn, values: np.ndarray) -> None:
+    fn.x.array[:] = values

@@ -1,0 +1,207 @@
+"""The ``fenicsx`` adapter: a St Venant-Kirchhoff solid assembled by FEniCSx (serial).
+
+Dofs are FEniCSx's own order of the vector P2/Q2 space: node-major,
+``(ux, uy, uz)`` of node 0, then node 1, ... (``dof_directions`` = 0, 1, 2
+repeated); ``dof_coordinates`` gives each dof's node. No boundary conditions
+(free edge: six rigid-body modes). Units are those of the mesh and material
+(SI for the bundled examples).
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from stepnf.adapter import SolverAdapter
+from stepnf.errors import SceneError
+from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals, spherical_cap
+
+from . import _compat
+from .config import parse_model
+from .model import Material, SvkForms
+
+
+def read_mesh(path: str | Path) -> VolumeMesh:
+    """Read the volume cells of any file meshio reads (one supported cell type)."""
+    import meshio
+
+    m = meshio.read(str(path))
+    kinds = [c.type for c in m.cells if c.type in _compat.CELLS]
+    if not kinds:
+        raise ValueError(f"{path}: no volume cells dolfinx can use; found {[c.type for c in m.cells]}, "
+                         f"supported {list(_compat.CELLS)}")
+    if len(set(kinds)) > 1:
+        raise ValueError(f"{path}: mixed volume cell types {sorted(set(kinds))}; give one cell type")
+    cells = np.concatenate([c.data for c in m.cells if c.type == kinds[0]])
+    used = np.unique(cells)
+    renum = np.full(len(m.points), -1)
+    renum[used] = np.arange(len(used))
+    pts = np.asarray(m.points, dtype=float)[used]
+    if pts.shape[1] == 2:
+        raise ValueError(f"{path}: a 2D mesh; the fenicsx adapter needs volume cells in 3D")
+    return VolumeMesh(points=pts, cells=renum[cells], cell_type=kinds[0], info={"file": str(path)})
+
+
+class FenicsxAdapter(SolverAdapter):
+    """St Venant-Kirchhoff 3D solid (Green-Lagrange strain, linear elastic stress) with FEniCSx.
+
+    Parameters
+    ----------
+    mesh : the volume mesh (``hexahedron27``, ``tetra10``, or linear cells)
+    material : :class:`Material` (E, nu, rho)
+    degree : polynomial degree of the displacement (2: Q2 on hexahedra, P2 on tetrahedra)
+    geometry : optional ``{a, R, h}`` of a shallow spherical cap (shell scales, labels)
+    quadrature_degree : quadrature degree of every form (4: 3x3x3 Gauss points on hexahedra)
+    """
+
+    name = "fenicsx"
+    provides_intrusive_tensors = True
+
+    def __init__(self, mesh: VolumeMesh, material: Material, *, degree: int = 2,
+                 geometry: Mapping[str, float] | None = None, quadrature_degree: int = 4):
+        t0 = time.perf_counter()
+        self.mesh = mesh
+        self.material = material
+        self.geometry = None if geometry is None else dict(geometry)
+        self.degree = int(degree)
+        self.quadrature_degree = int(quadrature_degree)
+        msh, _ = _compat.create_mesh(mesh.points, mesh.cells, mesh.cell_type)
+        self._V = _compat.vector_space(msh, self.degree)
+        self._nodes, bs = _compat.dof_layout(self._V)
+        assert bs == 3
+        self._forms = SvkForms(self._V, material, self.quadrature_degree)
+        self._n = 3 * len(self._nodes)
+        self._K: sp.csr_matrix | None = None
+        self._M: sp.csr_matrix | None = None
+        self._labeler: ModeLabeler | None = None
+        self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
+
+    # ------------------------------------------------------------ construction
+    @classmethod
+    def cap(cls, a: float, R: float, h: float, *, E: float, nu: float, rho: float, element: str = "hex27",
+            quadrature_degree: int = 4, **resolution: Any) -> "FenicsxAdapter":
+        """A free-edge spherical cap (``R = inf``: flat plate); see :func:`stepnf.geometry.spherical_cap`."""
+        if element not in ("hex27", "tet10"):
+            raise ValueError(f"Unknown element {element!r}. Pick one of ['hex27', 'tet10']")
+        mesh = spherical_cap(a, R, h, element="hex27", **resolution)
+        if element == "tet10":
+            from stepnf.geometry.tets import hex27_to_tetra
+
+            mesh = hex27_to_tetra(mesh)
+        return cls(mesh, Material(E, nu, rho), geometry={"a": a, "R": R, "h": h},
+                   quadrature_degree=quadrature_degree)
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
+                    ) -> "FenicsxAdapter":
+        p = parse_model(config, base_dir=Path(base_dir), scene_file=scene_file)
+        mat = p["material"]
+        if p["mesh"] is None:
+            g = dict(p["geometry"])
+            try:
+                return cls.cap(g.pop("a"), g.pop("R"), g.pop("h"), element=p["element"],
+                               quadrature_degree=p["quadrature_degree"], **mat, **g)
+            except ValueError as exc:
+                raise SceneError(scene_file, "model.geometry", str(exc)) from exc
+        try:
+            mesh = read_mesh(p["mesh"])
+        except Exception as exc:  # meshio raises many kinds
+            raise SceneError(scene_file, "model.mesh", f"cannot read {str(p['mesh'])!r}: {exc}") from exc
+        return cls(mesh, Material(**mat), geometry=p["geometry"], quadrature_degree=p["quadrature_degree"])
+
+    # ------------------------------------------------------------ required API
+    @property
+    def n_dofs(self) -> int:
+        return self._n
+
+    def mass_matrix(self) -> sp.csr_matrix:
+        if self._M is None:
+            t0 = time.perf_counter()
+            self._M = self._forms.mass()
+            self.timings["mass"] = time.perf_counter() - t0
+        return self._M
+
+    def stiffness_matrix(self) -> sp.csr_matrix:
+        if self._K is None:
+            t0 = time.perf_counter()
+            self._K = self._forms.stiffness()
+            self.timings["stiffness"] = time.perf_counter() - t0
+        return self._K
+
+    def _internal_force(self, u: np.ndarray) -> np.ndarray:
+        return self._forms.internal_force(u)
+
+    def quadratic_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return self._forms.quadratic(self._check_field(u), self._check_field(v))
+
+    def cubic_force(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return self._forms.cubic(self._check_field(u), self._check_field(v), self._check_field(w))
+
+    # ------------------------------------------------------------ geometry
+    def dof_coordinates(self) -> np.ndarray:
+        return np.repeat(self._nodes, 3, axis=0)
+
+    def dof_directions(self) -> np.ndarray:
+        return np.tile(np.arange(3), len(self._nodes))
+
+    def characteristic_length(self) -> float | None:
+        if self.geometry is not None:
+            return float(self.geometry["h"])
+        return super().characteristic_length()
+
+    def shell_scales(self):
+        if self.geometry is None:
+            return None
+        from stepnf.shell import ShellScales
+
+        g, m = self.geometry, self.material
+        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m.E, nu=m.nu, rho=m.rho)
+
+    def _R(self) -> float:
+        return math.inf if self.geometry is None else float(self.geometry["R"])
+
+    def _midsurface_nodes(self) -> np.ndarray:
+        """Indices of the dof nodes on the mid-surface (all nodes when it is unknown)."""
+        X = self._nodes
+        if self.mesh.midsurface is not None:
+            from scipy.spatial import cKDTree
+
+            mid_pts = self.mesh.points[self.mesh.midsurface]
+            dist, idx = cKDTree(X).query(mid_pts)
+            scale = float(np.ptp(X, axis=0).max())
+            if np.all(dist <= 1e-9 * scale):
+                return np.unique(idx)
+        return np.arange(len(X))
+
+    def _node_displacements(self, phi: np.ndarray) -> np.ndarray:
+        return np.asarray(phi, dtype=float).reshape(-1, 3)
+
+    def transverse_amplitude(self, phi: np.ndarray) -> float:
+        mid = self._midsurface_nodes()
+        U = self._node_displacements(phi)[mid]
+        w = np.einsum("ij,ij->i", U, outward_normals(self._nodes[mid], self._R()))
+        return float(np.max(np.abs(w)))
+
+    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
+        Phi = np.asarray(Phi, dtype=float)
+        if self._labeler is None:
+            mid = self._midsurface_nodes()
+            radius = float(self.geometry["a"]) if self.geometry else float(
+                np.hypot(self._nodes[:, 0], self._nodes[:, 1]).max())
+            self._labeler = ModeLabeler(self._nodes[mid, :2], mid, outward_normals(self._nodes, self._R()), radius)
+        return [self._labeler.label(self._node_displacements(Phi[:, j])) for j in range(Phi.shape[1])]
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d.update({"cell_type": self.mesh.cell_type, "n_cells": self.mesh.n_cells, "degree": self.degree,
+                  "quadrature_degree": self.quadrature_degree, "material": vars(self.material).copy(),
+                  "mesh": {k: v for k, v in self.mesh.info.items()}, "model": "St Venant-Kirchhoff 3D solid"})
+        if self.geometry is not None:
+            d["geometry"] = {k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
+                             for k, v in self.geometry.items()}
+        d["mesh"] = {k: (str(v) if isinstance(v, float) and math.isinf(v) else v) for k, v in d["mesh"].items()}
+        return d

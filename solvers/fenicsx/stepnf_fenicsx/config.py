@@ -1,0 +1,153 @@
+"""Validation of the ``[model]`` table of a FEniCSx scene (no dolfinx import).
+
+::
+
+    [model]
+    solver = "fenicsx"
+    element = "hex27"            # or "tet10"
+    mesh = "part.msh"            # optional: any mesh meshio reads, instead of [model.geometry]
+    quadrature_degree = 4        # optional
+    [model.geometry]
+    shape = "spherical_cap"
+    a = 0.15                     # projected outer radius
+    R = 1.5                      # radius of curvature, "inf" for the flat plate
+    h = 0.003                    # thickness
+    n_core = 14                  # optional resolution keys (defaults shown)
+    n_ring = 5
+    n_thick = 1
+    core = 0.5                   # half-width of the square core, fraction of a
+    [model.material]
+    E = 1.04e11
+    nu = 0.3
+    rho = 4400.0
+
+With ``mesh``, ``[model.geometry]`` may still give ``a``, ``R``, ``h``
+(without ``shape``) so that shell scales, Gamma and mode labels are
+available; the mesh must then be placed like the generator's caps (apex at
+the origin, centre of curvature at ``(0, 0, -R)``, axis ``z``). Without them,
+labels use ``e_z`` as the normal and every node as the mid-surface (fine for
+plates), and the characteristic length is the smallest bounding-box extent.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+from stepnf.errors import SceneError, allowed
+
+ELEMENTS = ("hex27", "tet10")
+SHAPES = ("spherical_cap",)
+MODEL_KEYS = ("element", "geometry", "material", "mesh", "quadrature_degree")
+GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_core", "n_ring", "n_thick", "core")
+MATERIAL_KEYS = ("E", "nu", "rho")
+RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick")
+
+
+def _number(value: Any, file, key: str, *, allow_inf: bool = False) -> float:
+    if isinstance(value, str) and allow_inf and value.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        extra = ' or "inf"' if allow_inf else ""
+        raise SceneError(file, key, f"expected a number{extra}, got {value!r}")
+    value = float(value)
+    if math.isnan(value) or (math.isinf(value) and not allow_inf):
+        raise SceneError(file, key, f"expected a finite number, got {value!r}")
+    return value
+
+
+def _table(config: Mapping[str, Any], name: str, keys, file) -> dict[str, Any]:
+    table = config.get(name, {})
+    if not isinstance(table, Mapping):
+        raise SceneError(file, f"model.{name}", f"expected a table, got {table!r}")
+    unknown = sorted(set(table) - set(keys))
+    if unknown:
+        raise SceneError(file, f"model.{name}", f"unknown keys {unknown}. Allowed keys: {allowed(keys)}")
+    return dict(table)
+
+
+def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -> dict[str, Any]:
+    """Check the keys and return ``{element, material, geometry (or None), mesh (Path or None), quadrature_degree}``."""
+    f = scene_file
+    unknown = sorted(set(config) - set(MODEL_KEYS))
+    if unknown:
+        raise SceneError(f, "model", f"unknown keys {unknown} for solver 'fenicsx'. Allowed keys: "
+                         f"{allowed(('solver',) + MODEL_KEYS)}")
+    element = config.get("element", "hex27")
+    if element not in ELEMENTS:
+        raise SceneError(f, "model.element", f"unknown element {element!r}. Pick one of {allowed(ELEMENTS)}")
+    qd = config.get("quadrature_degree", 4)
+    if isinstance(qd, bool) or not isinstance(qd, int) or not 2 <= qd <= 12:
+        raise SceneError(f, "model.quadrature_degree", f"expected an integer in [2, 12], got {qd!r}")
+
+    mat = _table(config, "material", MATERIAL_KEYS, f)
+    missing = [k for k in MATERIAL_KEYS if k not in mat]
+    if missing:
+        raise SceneError(f, "model.material", f"missing keys {missing}; a material needs {allowed(MATERIAL_KEYS)}")
+    E = _number(mat["E"], f, "model.material.E")
+    nu = _number(mat["nu"], f, "model.material.nu")
+    rho = _number(mat["rho"], f, "model.material.rho")
+    if E <= 0:
+        raise SceneError(f, "model.material.E", f"Young's modulus must be > 0, got {E}")
+    if not -1.0 < nu < 0.5:
+        raise SceneError(f, "model.material.nu", f"Poisson's ratio must lie in (-1, 0.5), got {nu}")
+    if rho <= 0:
+        raise SceneError(f, "model.material.rho", f"density must be > 0, got {rho}")
+
+    geo = _table(config, "geometry", GEOMETRY_KEYS, f)
+    mesh = config.get("mesh")
+    if mesh is not None:
+        if not isinstance(mesh, str) or not mesh:
+            raise SceneError(f, "model.mesh", f"expected a file name, got {mesh!r}")
+        path = Path(mesh)
+        path = path if path.is_absolute() else Path(base_dir) / path
+        if not path.exists():
+            raise SceneError(f, "model.mesh", f"mesh file {str(path)!r} does not exist")
+        if "shape" in geo or any(k in geo for k in RESOLUTION_KEYS + ("core",)):
+            raise SceneError(f, "model.geometry", "give either model.mesh or a generated geometry "
+                             "(model.geometry.shape and resolution keys), not both; with a mesh, "
+                             "model.geometry may only hold a, R, h")
+        mesh = path
+    elif not geo:
+        raise SceneError(f, "model.geometry", "missing: give model.geometry (shape = 'spherical_cap', a, R, h) "
+                         "or model.mesh (a file meshio reads)")
+    else:
+        shape = geo.get("shape")
+        if shape not in SHAPES:
+            raise SceneError(f, "model.geometry.shape", f"unknown or missing shape {shape!r}. Pick one of "
+                             f"{allowed(SHAPES)}")
+        missing = [k for k in ("a", "R", "h") if k not in geo]
+        if missing:
+            raise SceneError(f, "model.geometry", f"missing keys {missing}; a spherical cap needs ['a', 'R', 'h']")
+    geometry = None
+    if any(k in geo for k in ("a", "R", "h")):
+        missing = [k for k in ("a", "R", "h") if k not in geo]
+        if missing:
+            raise SceneError(f, "model.geometry", f"missing keys {missing}; shell scales need ['a', 'R', 'h']")
+        a = _number(geo["a"], f, "model.geometry.a")
+        R = _number(geo["R"], f, "model.geometry.R", allow_inf=True)
+        h = _number(geo["h"], f, "model.geometry.h")
+        if a <= 0:
+            raise SceneError(f, "model.geometry.a", f"outer radius must be > 0, got {a}")
+        if h <= 0:
+            raise SceneError(f, "model.geometry.h", f"thickness must be > 0, got {h}")
+        if R < a:
+            raise SceneError(f, "model.geometry.R", f"radius of curvature must be >= a = {a} "
+                             f"(or \"inf\" for the flat plate), got {R}")
+        if h >= a:
+            raise SceneError(f, "model.geometry.h", f"thickness must be smaller than a = {a}, got {h}")
+        geometry = {"a": a, "R": R, "h": h}
+        for k in RESOLUTION_KEYS:
+            if k in geo:
+                v = geo[k]
+                if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                    raise SceneError(f, f"model.geometry.{k}", f"expected a positive integer, got {v!r}")
+                geometry[k] = v
+        if "core" in geo:
+            c = _number(geo["core"], f, "model.geometry.core")
+            if not 0 < c < 1 / math.sqrt(2):
+                raise SceneError(f, "model.geometry.core", f"core half-width (fraction of a) must lie in "
+                                 f"(0, 0.707), got {c}")
+            geometry["core"] = c
+    return {"element": element, "material": {"E": E, "nu": nu, "rho": rho}, "geometry": geometry,
+            "mesh": mesh, "quadrature_degree": qd}

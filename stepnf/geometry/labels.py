@@ -1,0 +1,79 @@
+"""(k, n) labels of the modes of axisymmetric shells from their transverse displacement (numpy/scipy).
+
+A mode is *transverse* when the normal component of its mid-surface
+displacement carries at least half of the mid-surface displacement's
+squared norm. Its transverse displacement ``w`` is interpolated (linearly,
+from the scattered mid-surface nodes) onto a polar grid of the plan view;
+``k`` (nodal diameters) is the angular Fourier order with the largest
+area-weighted energy, ``n`` (nodal circles) the number of sign changes of the
+radial profile of that Fourier component (values under ``threshold`` of its
+maximum are ignored, so the centre of a ``k >= 1`` mode, where the profile
+vanishes like ``r^k``, does not count). Other modes (and modes whose
+mid-surface hardly moves: mean squared displacement under ``mid_fraction`` of
+that of all nodes) are ``"thickness"`` when
+their normal displacement dominates away from the mid-surface (through-thickness
+stretching) and ``"in-plane"`` otherwise.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class ModeLabeler:
+    """Labels modes from node displacements.
+
+    Parameters
+    ----------
+    plan : (p, 2) plan-view coordinates of the mid-surface nodes
+    mid : (p,) indices of those nodes among the displacement nodes
+    normals : (N, 3) unit normals at every displacement node
+    radius : outer radius of the plan view
+    """
+
+    def __init__(self, plan: np.ndarray, mid: np.ndarray, normals: np.ndarray, radius: float,
+                 *, n_r: int = 48, n_theta: int = 128, threshold: float = 0.01, max_k: int = 30,
+                 mid_fraction: float = 0.05):
+        from scipy.spatial import Delaunay
+
+        self.mid = np.asarray(mid)
+        self.normals = np.asarray(normals, dtype=float)
+        self.threshold = threshold
+        self.mid_fraction = mid_fraction
+        self.max_k = max_k
+        self.r = np.linspace(0.01, 0.99, n_r) * radius
+        self.theta = np.linspace(0.0, 2 * np.pi, n_theta, endpoint=False)
+        Rg, Tg = np.meshgrid(self.r, self.theta, indexing="ij")
+        self._tri = Delaunay(np.asarray(plan, dtype=float))
+        self._query = np.column_stack([(Rg * np.cos(Tg)).ravel(), (Rg * np.sin(Tg)).ravel()])
+
+    def _interp(self, w_mid: np.ndarray) -> np.ndarray:
+        from scipy.interpolate import LinearNDInterpolator
+
+        vals = LinearNDInterpolator(self._tri, w_mid, fill_value=0.0)(self._query)
+        return vals.reshape(len(self.r), len(self.theta))
+
+    def split(self, U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Normal (N,) and tangential (N, 3) parts of node displacements ``U`` (N, 3)."""
+        w = np.einsum("ij,ij->i", U, self.normals)
+        return w, U - w[:, None] * self.normals
+
+    def label(self, U: np.ndarray):
+        """Label of one mode given its node displacements ``U`` (N, 3)."""
+        w, t = self.split(U)
+        wm, tm = w[self.mid], t[self.mid]
+        e_mid = np.sum(wm**2) + np.sum(tm**2)
+        # mean squared mid-surface displacement against that of every node
+        still_mid = e_mid / len(wm) < self.mid_fraction * (np.sum(w**2) + np.sum(t**2)) / len(w)
+        if still_mid or np.sum(wm**2) < np.sum(tm**2):
+            return "thickness" if np.sum(w**2) > np.sum(t**2) else "in-plane"
+        W = self._interp(wm)
+        C = np.fft.rfft(W, axis=1) / W.shape[1]
+        kmax = min(self.max_k, C.shape[1] - 1)
+        energy = (np.abs(C[:, : kmax + 1]) ** 2 * self.r[:, None]).sum(axis=0)
+        k = int(np.argmax(energy))
+        c = C[:, k]
+        phase = 0.5 * np.angle(np.sum(self.r * c**2))
+        profile = np.real(c * np.exp(-1j * phase))
+        big = profile[np.abs(profile) > self.threshold * np.abs(profile).max()]
+        n = int(np.count_nonzero(np.diff(np.sign(big)) != 0))
+        return (k, n)
