@@ -59,6 +59,12 @@ class SolverAdapter:
     provides_intrusive_tensors: ClassVar[bool] = False
     #: Evaluating many fields in one call is much cheaper than one by one.
     prefers_batches: ClassVar[bool] = False
+    #: The solver gives the tangent stiffness at a prescribed field (:meth:`tangent_stiffness`),
+    #: more precisely than its printed forces: STEP can use it (``[analysis.step] method = "tangent"``).
+    provides_tangent_stiffness: ClassVar[bool] = False
+    #: STEP amplitude (fraction of the characteristic length) this solver works best with, when the
+    #: scene gives none; e.g. larger for a solver that prints few digits. ``None``: stepnf's default.
+    step_relative_amplitude: ClassVar[float | None] = None
 
     # ------------------------------------------------------------------ set-up
     @classmethod
@@ -213,6 +219,10 @@ class SolverAdapter:
     ) -> Callable[[np.ndarray], np.ndarray]:
         """Factorise ``K - sigma M`` (with ``fixed_dofs`` held at zero) and return ``solve(b)``."""
         raise NotImplementedError(f"{type(self).__name__} does not provide shifted solves")
+
+    def tangent_stiffness(self, u: np.ndarray) -> sp.spmatrix:
+        """Tangent stiffness ``df/du`` at the displacement ``u`` (n, n), sparse."""
+        raise NotImplementedError(f"{type(self).__name__} does not provide tangent stiffness")
 
     def quadratic_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Exact symmetric bilinear term ``G(u, v)`` (n,)."""

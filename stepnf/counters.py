@@ -20,6 +20,8 @@ class Counters:
     factorizations: int = 0
     eigensolver_solves: int = 0
     solver_runs: int = 0
+    #: tangent stiffness matrices asked of the solver (STEP with method = "tangent")
+    tangent_evaluations: int = 0
     #: wall-clock seconds spent factorising (all factorisations above)
     factorization_seconds: float = 0.0
 

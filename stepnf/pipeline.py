@@ -8,7 +8,7 @@ whatever the model size; the full STEP over the retained modes runs only when
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -30,7 +30,7 @@ from .progress import Progress
 from .registry import get_solver
 from .results import ModeResult, RunResult, label_text, write_hdf5
 from .scene import Scene, parse_label
-from .step import ForceEvaluator, full_step, step_amplitude, targeted_steps
+from .step import ForceEvaluator, full_step, step_amplitude, targeted_steps, targeted_steps_tangent
 
 MODAL_METHODS = {"nf", "md_modal", "smd_modal"}
 FULL_METHODS = {"dnf", "md_full", "smd_full"}
@@ -191,6 +191,37 @@ def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.n
     if st.Gv_check is not None:
         floor = np.maximum(floor, 10.0 * np.abs(Phi.T @ (st.Gv - st.Gv_check)))
     return floor
+
+
+def captured_fraction(Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix) -> float:
+    """Share of ``G(phi_p, phi_p)`` the retained modes carry: ``sum_S g_s^2 / (Gv^T M^-1 Gv)``.
+
+    The modal sums of NF, MD and SMD see only that share; the rest lies on
+    modes not retained (in-plane and thickness modes of a 3D solid). M^-1 by
+    Jacobi-preconditioned CG (M is well conditioned).
+    """
+    import scipy.sparse.linalg as spla
+
+    total2 = float(Gv @ Gv)
+    if total2 == 0.0:
+        return 1.0
+    d = np.asarray(M.diagonal()).ravel()
+    x, info = spla.cg(M, Gv, M=sp.diags(1.0 / d), tol=1e-10, atol=0.0, maxiter=500)
+    full = float(Gv @ x)
+    return float(np.sum(g_retained**2) / full) if full > 0 else 1.0
+
+
+def truncation_flags(r: MethodResult, Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix,
+                     n: int, threshold: float = 0.99) -> list[dict]:
+    """Flag a modal-sum result whose retained modes miss more than 1% of the quadratic force."""
+    frac = captured_fraction(Gv, g_retained, M)
+    r.extra["captured_fraction"] = frac
+    if frac >= threshold:
+        return []
+    return [{"kind": "modal_truncation", "value": frac,
+             "message": f"{r.method.upper()}: the {n} retained modes carry only {100 * frac:.3g}% of "
+                        "G(phi_p, phi_p) (M^-1 norm); the rest lies on modes not retained (in-plane and "
+                        "thickness modes of a 3D model). Use dnf, or md/smd with qm_order = \"full\"."}]
 
 
 def _t_error(T: float, T2: float) -> float:
@@ -358,18 +389,32 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                             batch_size=1024 if adapter.prefers_batches else 64, checkpoint=checkpoint)
     need_targeted = bool(evaluators & FULL_METHODS) or (bool(evaluators & MODAL_METHODS) and scene.tensors != "full")
     steps = {}
+    policy = scene.step
+    if policy.relative_amplitude is None and adapter.step_relative_amplitude is not None:
+        policy = replace(policy, relative_amplitude=float(adapter.step_relative_amplitude))
+    if policy.method == "tangent" and not adapter.provides_tangent_stiffness:
+        raise SceneError(scene.file, "analysis.step.method",
+                         f"'tangent' needs a solver that provides tangent stiffness; {scene.solver!r} does not. "
+                         "Allowed here: ['forces']")
     if need_targeted:
-        qs = np.array([step_amplitude(Phi[:, p], scene.step, length, mask) for p in masters])
-        with progress.stage("step", f"STEP (targeted): {len(masters) * (4 if scene.step.check else 2)} force evaluations"):
-            for st in targeted_steps(forces, K, Phi[:, masters], qs, scene.step, masters):
-                steps[st.p] = st
+        qs = np.array([step_amplitude(Phi[:, p], policy, length, mask) for p in masters])
+        per = 4 if policy.check else 2
+        if policy.method == "tangent":
+            with progress.stage("step", f"STEP (targeted, tangent): {len(masters) * per} tangent stiffnesses"):
+                for st in targeted_steps_tangent(adapter.tangent_stiffness, K, Phi[:, masters], qs, policy,
+                                                 masters, counters):
+                    steps[st.p] = st
+        else:
+            with progress.stage("step", f"STEP (targeted): {len(masters) * per} force evaluations"):
+                for st in targeted_steps(forces, K, Phi[:, masters], qs, policy, masters):
+                    steps[st.p] = st
     full = None
     arrays: dict[str, np.ndarray] = {"omega": omega, "master_modes": np.asarray(masters)}
     if scene.tensors == "full":
         Sfull = retained_set(max(masters), n_ret, m)
-        qf = np.array([step_amplitude(Phi[:, s], scene.step, length, mask) for s in Sfull])
+        qf = np.array([step_amplitude(Phi[:, s], policy, length, mask) for s in Sfull])
         with progress.stage("step_full", f"STEP (full plan) over {len(Sfull)} modes"):
-            full = full_step(forces, K, Phi[:, Sfull], qf, scene.step, modes=Sfull,
+            full = full_step(forces, K, Phi[:, Sfull], qf, policy, modes=Sfull,
                              progress=lambda d, t: progress.bar(d, t, "STEP"))
         arrays["g"], arrays["h"], arrays["full_modes"] = full.g, full.h, Sfull
         run_flags += full.flags
@@ -436,6 +481,8 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     if g_chk is not None:
                         r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels, floor)
                         r.T_error = _t_error(r.T, r2.T)
+                    if st is not None:
+                        r.flags += truncation_flags(r, st.Gv, g_all[S], M, len(S))
                 elif ev == "dnf":
                     dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
                     dh = st.h - st.h_check if st.h_check is not None else 0.0
@@ -466,10 +513,10 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                 r.method = name
                 if ev in MODAL_METHODS:
                     r.retained_modes = len(retained_set(p, n_ret, m))
-                if r.T_error is not None and r.T_error > scene.step.tolerance:
+                if r.T_error is not None and r.T_error > policy.tolerance:
                     r.flags.append({"kind": "step_accuracy", "value": float(r.T_error),
                                     "message": f"T changes by {r.T_error:.2e} (relative) between the two "
-                                               f"STEP amplitudes; tolerance {scene.step.tolerance:.1e}"})
+                                               f"STEP amplitudes; tolerance {policy.tolerance:.1e}"})
                 if scales is not None:
                     r.gamma = scales.gamma(r.T, w_max)
                 rec.methods[name] = r

@@ -24,7 +24,9 @@ factorisation, see :mod:`stepnf.deflation`; false: one factorisation per
 shift), ``max_modes``; and
 the table ``[analysis.step]``: ``amplitude`` ("auto" | a length in model
 units), ``relative_amplitude`` (fraction of the characteristic length),
-``check`` (bool), ``check_ratio``, ``tolerance``. ``[output]``: ``dir``,
+``check`` (bool), ``check_ratio``, ``tolerance``, ``method`` ("forces" |
+"tangent": G and h from the solver's tangent stiffness, for solvers that
+offer it and print few digits). ``[output]``: ``dir``,
 ``name`` (file stem, default the scene's), ``hdf5`` (bool), ``plot`` (bool).
 """
 from __future__ import annotations
@@ -39,14 +41,14 @@ from typing import Any, Mapping
 from .errors import SceneError, allowed
 from .evaluators import Tolerances
 from .linalg import BACKENDS
-from .step import StepPolicy
+from .step import STEP_METHODS, StepPolicy
 
 METHODS = ("nf", "dnf", "md", "smd", "md_modal", "smd_modal", "md_full", "smd_full")
 TOP_KEYS = ("model", "analysis", "output")
 ANALYSIS_KEYS = ("master_modes", "methods", "retained_modes", "qm_order", "tensors", "rigid_modes",
                  "rigid_tolerance", "degeneracy_tolerance", "resonance_tolerance", "coupling_tolerance",
                  "linear_solver", "deflation", "max_modes", "step")
-STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance")
+STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance", "method")
 OUTPUT_KEYS = ("dir", "name", "hdf5", "plot")
 _LABEL = re.compile(r"^\s*\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*$")
 
@@ -217,6 +219,8 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
         kw["check_ratio"] = r
     if "tolerance" in step:
         kw["tolerance"] = float(_number(f, "analysis.step.tolerance", step["tolerance"], positive=True))
+    if "method" in step:
+        kw["method"] = _choice(f, "analysis.step.method", step["method"], STEP_METHODS)
     sc.step = StepPolicy(**kw)
 
     out = data.get("output", {})

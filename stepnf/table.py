@@ -52,7 +52,8 @@ def format_table(res: RunResult) -> str:
     for m in res.modes:
         for r in m.methods.values():
             for f in r.flags:
-                if f.get("kind", "").startswith("internal_resonance") or f.get("kind") == "step_accuracy":
+                if f.get("kind", "").startswith("internal_resonance") or f.get("kind") in (
+                        "step_accuracy", "modal_truncation"):
                     lines.append(f"flag [{m.index} {r.method}]: {f['message']}")
     if res.hdf5_path:
         lines.append(f"results: {res.hdf5_path}")

@@ -65,6 +65,7 @@ class PolynomialAdapter(SolverAdapter):
 
     name = "polynomial"
     provides_intrusive_tensors = True
+    provides_tangent_stiffness = True
 
     def __init__(self, M, K, G, H, *, coordinates=None, directions=None, length=None, source: str = "<memory>"):
         M = np.asarray(M, dtype=float)
@@ -117,6 +118,12 @@ class PolynomialAdapter(SolverAdapter):
     def _internal_forces(self, U: np.ndarray) -> np.ndarray:
         return (U @ self._K.T + np.einsum("ijk,mj,mk->mi", self._G, U, U, optimize=True)
                 + np.einsum("ijkl,mj,mk,ml->mi", self._H, U, U, U, optimize=True))
+
+    def tangent_stiffness(self, u):
+        """``K + 2 G(u, .) + 3 H(u, u, .)`` (exact; G, H symmetric in their lower indices)."""
+        u = self._check_field(u)
+        return sp.csr_matrix(self._K + 2 * np.einsum("ijk,j->ik", self._G, u)
+                             + 3 * np.einsum("ijkl,j,k->il", self._H, u, u, optimize=True))
 
     def quadratic_force(self, u, v):
         return np.einsum("ijk,j,k->i", self._G, u, v)

@@ -1,0 +1,39 @@
+"""STEP through tangent stiffnesses equals STEP through forces (exact cubic), and is refused where absent."""
+import json
+
+import numpy as np
+import pytest
+
+from stepnf.cli import main
+from stepnf.counters import Counters
+from stepnf.step import ForceEvaluator, StepPolicy, targeted_steps, targeted_steps_tangent
+from stepnf_polynomial import PolynomialAdapter, save_system
+from systems import random_system
+
+
+def test_tangent_route_equals_force_route():
+    M, K, G, H = random_system(8, seed=4)
+    ad = PolynomialAdapter(M, K, G, H)
+    Phi = np.linalg.eigh(K)[1][:, :2]  # any fields will do for G(phi, phi) and phi.H(phi, phi, phi)
+    q = np.array([0.3, 0.2])
+    c = Counters()
+    a = targeted_steps(ForceEvaluator(ad.internal_forces, 8, c), ad.stiffness_matrix(), Phi, q, StepPolicy())
+    b = targeted_steps_tangent(ad.tangent_stiffness, ad.stiffness_matrix(), Phi, q, StepPolicy(), counters=c)
+    for x, y in zip(a, b):
+        assert np.allclose(x.Gv, y.Gv, rtol=1e-12, atol=1e-13 * np.abs(x.Gv).max())  # both exact: round-off only
+        assert y.h == pytest.approx(x.h, rel=1e-11)
+    assert c.tangent_evaluations == 8  # 2 per mode, 2 more for the check amplitude
+
+
+def test_scene_method_tangent(tmp_path, capsys):
+    M, K, G, H = random_system(6, seed=2)
+    save_system(tmp_path / "s.npz", M, K, G, H)
+    p = tmp_path / "s.toml"
+    p.write_text('[model]\nsolver = "polynomial"\nfile = "s.npz"\n[analysis]\nmaster_modes = [0]\n'
+                 'methods = ["dnf"]\n[analysis.step]\nmethod = "tangent"\n[output]\ndir = "o"\n')
+    assert main(["run", str(p), "--json", "-q"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["counts"]["force_evaluations"] == 0 and doc["counts"]["tangent_evaluations"] == 4
+    p.write_text(p.read_text().replace('method = "tangent"', 'method = "secant"'))
+    assert main(["run", str(p), "-q"]) == 2
+    assert "analysis.step.method" in capsys.readouterr().err
