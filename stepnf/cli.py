@@ -79,6 +79,38 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0 if not failed else 4
 
 
+def _cmd_curves(args: argparse.Namespace) -> int:
+    """``stepnf curves``: the von Karman shell's Figs. 2 and 3 (T_p, Gamma, rho_p versus kappa)."""
+    from pathlib import Path
+
+    from .curves import CurveOptions, CurvesError, compute_curves, format_summary, parse_mode, write_all
+    from .evaluators import Tolerances
+    from .progress import Progress
+
+    progress = Progress(enabled=not args.quiet)
+    try:
+        modes = tuple(parse_mode(m) for m in args.modes) if args.modes else None
+        kw = {"kappa_max": args.kappa_max, "n_kappa": args.n_kappa, "nu": args.nu,
+              "tolerances": Tolerances(resonance=args.resonance_tol),
+              "gap_resonance": args.gap_tol, "omega_max": args.omega_max}
+        if modes:
+            kw["modes"] = modes
+        options = CurveOptions(**kw)
+        with progress.stage("curves", f"von Karman shell: {args.n_kappa} kappa values in [0, {args.kappa_max:g}]"):
+            curves = compute_curves(options, progress=lambda i, n: progress.bar(i, n, "kappa"))
+        quantities = ("T", "gamma") if args.quantity == "both" else (args.quantity,)
+        with progress.stage("write", "HDF5, CSV and figures"):
+            files = write_all(curves, Path(args.out), quantities=quantities, plots=not args.no_plot)
+    except CurvesError as exc:
+        print(f"stepnf: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{len(curves.modes)} modes x 3 methods x {len(curves.kappa)} kappa values in {curves.seconds:.1f} s")
+    for key, path in files.items():
+        print(f"  {key:16s} {path}")
+    print(format_summary(curves))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -98,6 +130,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_sw.add_argument("--retry-failed", action="store_true", help="run again the cases stored as failed")
     p_sw.add_argument("--quiet", "-q", action="store_true")
     p_sw.set_defaults(func=_cmd_sweep)
+    p_cv = sub.add_parser("curves", help="von Karman shell: T_p by NF/MD/SMD and rho_p versus kappa "
+                          "(paper Figs. 2 and 3) to HDF5, CSV and PNG")
+    p_cv.add_argument("--kappa-max", type=float, default=100.0, help="largest kappa (grid from 0; default 100)")
+    p_cv.add_argument("--n-kappa", type=int, default=200, help="number of kappa values (default 200)")
+    p_cv.add_argument("--modes", nargs="+", metavar="(K,N)",
+                      help="master modes, e.g. --modes \"(2,0)\" \"(0,1)\" (default: the six of Fig. 3)")
+    p_cv.add_argument("--nu", type=float, default=0.3, help="Poisson ratio (default 0.3)")
+    p_cv.add_argument("--quantity", choices=["T", "gamma", "both"], default="both",
+                      help="y quantity of Fig. 3: the paper's T_p, Gamma = T_p/max|phi|^2, or both figures")
+    p_cv.add_argument("--resonance-tol", type=float, default=0.05,
+                      help="relative window of the evaluators' internal-resonance flags (default 0.05)")
+    p_cv.add_argument("--gap-tol", type=float, default=0.02,
+                      help="relative window in which a significant resonance breaks the plotted line (default 0.02)")
+    p_cv.add_argument("--omega-max", type=float, default=80.0,
+                      help="Fig. 2 shows the (k, n) modes with frequency below this at kappa = 0 (default 80)")
+    p_cv.add_argument("--out", "-o", default="results/curves", help="output folder (default results/curves)")
+    p_cv.add_argument("--no-plot", action="store_true", help="data only, no PNG")
+    p_cv.add_argument("--quiet", "-q", action="store_true", help="no progress messages on stderr")
+    p_cv.set_defaults(func=_cmd_curves)
     p_sol = sub.add_parser("solvers", help="list the installed solver adapters")
     p_sol.set_defaults(func=_cmd_solvers)
     args = parser.parse_args(argv)

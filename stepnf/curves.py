@@ -485,12 +485,18 @@ def plot_frequencies(curves: Curves, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(7.5, 6.0))
     cmap = plt.get_cmap("tab10")
+    ends = curves.frequencies[:, -1]
+    ypos = ends.copy()  # label heights at the right end, pushed apart so they do not overlap
+    gap = 0.022 * (float(np.nanmax(curves.frequencies)) - float(np.nanmin(curves.frequencies)))
+    order = np.argsort(ends)
+    for a, b in zip(order[:-1], order[1:]):
+        ypos[b] = max(ypos[b], ypos[a] + gap)
     for i, (k, n) in enumerate(curves.freq_labels):
         y = curves.frequencies[i]
         ls = "-" if n == 0 else ("--" if k == 0 else "-.")
         ax.plot(curves.kappa, y, ls, color=cmap(k % 10), lw=1.3)
-        ax.annotate(f"({k},{n})", (curves.kappa[-1], y[-1]), xytext=(3, 0), textcoords="offset points",
-                    fontsize=7, va="center", color=cmap(k % 10))
+        ax.annotate(f"({k},{n})", (curves.kappa[-1], ypos[i]), xytext=(3, 0), textcoords="offset points",
+                    fontsize=7, va="center", color=cmap(k % 10), annotation_clip=False)
     ax.set_xlabel(r"$\kappa = a^4/(R^2h^2)$")
     ax.set_ylabel(r"$\omega_{kn}$ (nondimensional)")
     ax.set_title(r"Natural frequencies of the free-edge shallow spherical shell"
@@ -522,16 +528,26 @@ def _limits(curves: Curves, i: int, quantity: str) -> tuple[float, float]:
 
 
 def plot_nonlinearity(curves: Curves, path: str | Path, quantity: str = "T") -> Path:
-    """Fig. 3: T_p (or Gamma) by NF, MD, SMD versus kappa, one panel per mode, rho_p on a second axis.
-
-    Gaps (flagged points) break the lines; each is marked by a tick at the bottom of the
-    panel in the method's colour (rows: NF, MD, SMD). The rho = 3 and rho = 4 lines bound
-    the slow/fast criterion of the paper.
-    """
-    q = _quantity(quantity)
+    """Fig. 3 to a PNG file (see :func:`draw_nonlinearity`)."""
     plt = _pyplot()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    fig = draw_nonlinearity(curves, quantity)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def draw_nonlinearity(curves: Curves, quantity: str = "T") -> Any:
+    """Fig. 3: T_p (or Gamma) by NF, MD, SMD versus kappa, one panel per mode, rho_p on a second axis.
+
+    Returns the matplotlib figure; in each panel ``ax.lines[1:4]`` are the NF, MD, SMD
+    curves (:meth:`Curves.plotted`). Gaps (flagged points) break the lines; each is marked
+    by a tick at the bottom of the panel in the method's colour (rows: NF, MD, SMD). The
+    rho = 3 and rho = 4 lines bound the slow/fast criterion of the paper.
+    """
+    q = _quantity(quantity)
+    plt = _pyplot()
     n = len(curves.modes)
     ncol = min(3, n)
     nrow = math.ceil(n / ncol)
@@ -542,14 +558,15 @@ def plot_nonlinearity(curves: Curves, path: str | Path, quantity: str = "T") -> 
     for i, kn in enumerate(curves.modes):
         ax = axes.ravel()[i]
         ax.axhline(0.0, color="0.6", lw=0.7)
-        for r, m in enumerate(METHODS):
+        for m in METHODS:
             (line,) = ax.plot(curves.kappa, curves.plotted(m, q)[i], color=_COLORS[m], lw=1.6, label=_NAMES[m])
+            if i == 0:
+                handles.append(line)
+        for r, m in enumerate(METHODS):
             gx = curves.kappa[curves.gaps(m)[i]]
             if gx.size:
                 ax.plot(gx, np.full(gx.size, 0.03 + 0.035 * r), "|", color=_COLORS[m], ms=7, mew=1.2,
                         transform=ax.get_xaxis_transform(), clip_on=False)
-            if i == 0:
-                handles.append(line)
         ax.set_ylim(*_limits(curves, i, q))
         ax.set_xlim(curves.kappa[0], curves.kappa[-1])
         ax.set_xlabel(r"$\kappa$")
@@ -573,9 +590,7 @@ def plot_nonlinearity(curves: Curves, path: str | Path, quantity: str = "T") -> 
                  + ("T_p, modes normalised by int phi^2 dS = 1" if q == "T" else "Gamma = T_p / max|phi_p|^2")
                  + "); dotted: rho = 3 and 4", fontsize=11)
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return fig
 
 
 # ------------------------------------------------------------------ one call

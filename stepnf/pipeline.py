@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, replace
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -167,6 +166,15 @@ def _ritz_near(ctx: FullOrderContext, sigma: float, Gv: np.ndarray, counters: Co
     mu, z = np.linalg.eigh(T.T @ Kr @ T)
     phi = V @ (T @ z)
     return np.sqrt(np.maximum(mu, 0.0)), phi
+
+
+def _adapter_shifted(shift_solver, n: int, counters: Counters):
+    """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects."""
+    def shifted(sigma: float, label: str) -> Factorization:
+        counters.factorizations += 1
+        raw = shift_solver(sigma)
+        return Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, label)
+    return shifted
 
 
 class _DeflatedPinv:
@@ -436,12 +444,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
             else:
                 Kp = PseudoInverse(K, M, basis.rigid, counters=counters, backend=backend,
                                    solver_factory=shift_solver)
-            shifted = None
-            if shift_solver is not None:
-                def shifted(sigma: float, label: str) -> Factorization:
-                    counters.factorizations += 1
-                    raw = shift_solver(sigma)
-                    return Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, label)
+            shifted = _adapter_shifted(shift_solver, n, counters) if shift_solver is not None else None
             ctx = FullOrderContext(K, M, Kp, counters, backend, shifted, deflated)
         return ctx
 

@@ -264,7 +264,6 @@ def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.nda
     KV = K @ V
     proj = Phi.T  # (n, n_dof)
     # field list: (+j), (-j), (j+k), -(j+k), (j-k), (j+k+l)
-    singles = [(j,) for j in range(n)]
     pairs = list(itertools.combinations(range(n), 2))
     triples = list(itertools.combinations(range(n), 3))
     U_rows: list[np.ndarray] = []

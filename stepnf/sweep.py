@@ -32,7 +32,6 @@ import itertools
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
 import tomllib

@@ -208,7 +208,7 @@ def test_user_inp_mesh_and_template(tmp_path):
       "element": "hex27"}, "model.element"),
     ({"geometry": {"a": 1.0, "R": "flat", "h": 0.1}, "material": {"E": 1.0, "nu": 0.3, "rho": 1.0}},
      "model.geometry.R"),
-    ({"geometry": {"a": 1.0, "R": "inf", "h": 0.1}, "material": {"E": 1.0, "nu": 0.3}}, "model.material"),
+    ({"geometry": {"a": 1.0, "R": "inf", "h": 0.1}, "material": {"E": 1.0, "nu": 0.3}}, "model.material.rho"),
     ({"geometry": {"a": 1.0, "R": "inf", "h": 0.1, "n_cor": 3},
       "material": {"E": 1.0, "nu": 0.3, "rho": 1.0}}, "model.geometry"),
     ({"mesh": "nope.inp"}, "model.mesh"),
@@ -247,7 +247,7 @@ def test_midsurface_sampler_reproduces_quadratics():
     affine, so W @ q(nodes) = q(sample positions) to round-off for any quadratic q.
     """
     from stepnf.geometry import spherical_cap
-    from stepnf_calculix.midsurface import midsurface_sampler
+    from stepnf.geometry.midsurface import midsurface_sampler
 
     mesh = spherical_cap(1.0, float("inf"), 0.1, element="hex20", n_core=2, n_ring=1)
     W, X = midsurface_sampler(mesh.points, mesh.cells, mesh.midsurface)

@@ -108,3 +108,31 @@ def test_labels_of_in_plane_and_thickness_fields():
     assert lab.label(in_plane) == "in-plane"
     thickness = np.column_stack([0 * x, 0 * y, z])  # through-thickness stretching, zero on the mid-surface
     assert lab.label(thickness) == "thickness"
+
+
+def test_shared_cap_scene_keys(tmp_path):
+    """The keys every cap adapter accepts: impossible caps and materials are refused, naming the key."""
+    import pytest
+
+    from stepnf.errors import SceneError
+    from stepnf.geometry import keys
+
+    good = {"geometry": {"a": 0.15, "R": "inf", "h": 0.003, "n_core": 4},
+            "material": {"E": 1e11, "nu": 0.3, "rho": 4e3}}
+    g = keys.cap_geometry(good, None)
+    assert g["R"] == float("inf") and g["resolution"] == {"n_core": 4}
+    bad = [({"geometry": {"a": 0.15, "R": 0.1, "h": 0.003}}, "model.geometry.R"),  # R < a
+           ({"geometry": {"a": 0.15, "R": 2.0, "h": 0.0}}, "model.geometry.h"),
+           ({"geometry": {"a": 0.15, "R": 2.0, "h": -1e-3}}, "model.geometry.h"),
+           ({"geometry": {"a": 0.15, "R": 2.0, "h": 0.2}}, "model.geometry.h"),  # h >= a
+           ({"geometry": {"a": 0.15, "R": 2.0, "h": 0.003, "shape": "torus"}}, "model.geometry.shape")]
+    for cfg, key in bad:
+        with pytest.raises(SceneError) as e:
+            keys.cap_geometry(cfg, tmp_path / "s.toml")
+        assert e.value.key == key
+    for mat, key in [({"E": 1.0, "nu": 0.5, "rho": 1.0}, "model.material.nu"),
+                     ({"E": -1.0, "nu": 0.3, "rho": 1.0}, "model.material.E"),
+                     ({"E": 1.0, "nu": 0.3}, "model.material.rho")]:
+        with pytest.raises(SceneError) as e:
+            keys.material({"material": mat}, None)
+        assert e.value.key == key

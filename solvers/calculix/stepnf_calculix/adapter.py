@@ -11,6 +11,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from stepnf.errors import SceneError, allowed
+from stepnf.geometry import keys as cap_keys
+from stepnf.geometry.keys import MATERIAL_KEYS, positive_number
+from stepnf.geometry.solid import CapSolid
 from stepnf.external import CommandTemplate, ExternalSolverAdapter, KEEP_POLICIES, missing_output, require_files
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
@@ -21,10 +24,8 @@ MODEL_KEYS = ("element", "geometry", "material", "mesh", "template", "executable
               "workdir", "keep", "threads", "parallel_runs")
 #: Largest number of ``*BOUNDARY`` lines (fields x dofs) in one deck; bigger batches are split over runs.
 MAX_BOUNDARY_LINES = 4_000_000
-GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_core", "n_ring", "n_thick", "core")
-MATERIAL_KEYS = ("E", "nu", "rho")
+
 ELEMENTS = ("hex20",)
-SHAPES = ("spherical_cap",)
 
 
 def shipped_template(name: str) -> CommandTemplate:
@@ -34,18 +35,7 @@ def shipped_template(name: str) -> CommandTemplate:
 
 
 
-def _labeler_class():
-    """The (k, n) mode labeler shared with the fenicsx adapter (pure numpy/scipy), or ``None``."""
-    import importlib
-
-    for module in ("stepnf.labels", "stepnf_fenicsx.labels"):
-        try:
-            return importlib.import_module(module).ModeLabeler
-        except (ImportError, AttributeError):
-            continue
-    return None
-
-class CalculixAdapter(ExternalSolverAdapter):
+class CalculixAdapter(CapSolid, ExternalSolverAdapter):
     """A solid model run by CalculiX ``ccx`` as a black box.
 
     Dofs: ``ux, uy, uz`` of every node, node by node in the order of
@@ -103,8 +93,7 @@ class CalculixAdapter(ExternalSolverAdapter):
         self.geometry = dict(geometry or {})
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
         self.threads = threads
-        self._vtk_cells: np.ndarray | None = None  # set by from_volume_mesh (mid-surface sampling)
-        self._sampler = None
+        self.hex20_cells: np.ndarray | None = None  # set by from_volume_mesh (mid-surface sampling)
         self._mesh = mesh_text(self.node_ids, self.points, self.blocks)
         self.max_fields_per_run = max(1, MAX_BOUNDARY_LINES // self.n_dofs)
         self._pos = np.full(int(self.node_ids.max()) + 1, -1)
@@ -124,7 +113,8 @@ class CalculixAdapter(ExternalSolverAdapter):
         conn = np.asarray(mesh.cells)[:, perm] + 1
         kw.setdefault("midsurface", getattr(mesh, "midsurface", None))
         ad = cls(ids, mesh.points, [(ccx_type, np.arange(1, len(conn) + 1), conn)], **kw)
-        ad._vtk_cells = np.asarray(mesh.cells, dtype=np.int64)
+        if mesh.cell_type == "hexahedron20":
+            ad.hex20_cells = np.asarray(mesh.cells, dtype=np.int64)
         return ad
 
     @classmethod
@@ -163,59 +153,6 @@ class CalculixAdapter(ExternalSolverAdapter):
     def stiffness_matrix(self) -> sp.csr_matrix:
         self._matrices()
         return self._K
-
-    def dof_coordinates(self) -> np.ndarray:
-        return np.repeat(self.points, 3, axis=0)
-
-    def dof_directions(self) -> np.ndarray:
-        return np.tile(np.arange(3), len(self.node_ids))
-
-    def characteristic_length(self) -> float | None:
-        if "h" in self.geometry:
-            return float(self.geometry["h"])
-        return super().characteristic_length()
-
-    def shell_scales(self):
-        g, m = self.geometry, self.material
-        if g.get("shape") != "spherical_cap" or not all(k in m for k in MATERIAL_KEYS):
-            return None
-        from stepnf.shell import ShellScales
-
-        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])
-
-    def transverse_amplitude(self, phi: np.ndarray) -> float | None:
-        """Largest |normal displacement| over the mid-surface (3 x 3 points per element, see :mod:`.midsurface`)."""
-        if self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
-            return None
-        from stepnf.geometry import outward_normals
-
-        U = np.asarray(phi, dtype=float).reshape(-1, 3)
-        if self._vtk_cells is not None:
-            if self._sampler is None:
-                from .midsurface import midsurface_sampler
-
-                W, X = midsurface_sampler(self.points, self._vtk_cells, self.midsurface)
-                self._sampler = (W, outward_normals(X, float(self.geometry["R"])))
-            W, normals = self._sampler
-            if W.shape[0]:
-                return float(np.max(np.abs(np.einsum("ij,ij->i", W @ U, normals))))
-        sel = self.midsurface
-        w = np.einsum("ij,ij->i", U[sel], outward_normals(self.points[sel], float(self.geometry["R"])))
-        return float(np.max(np.abs(w)))
-
-    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
-        """(k, n) labels of cap modes (via the shared ModeLabeler), else ``None`` per mode."""
-        Phi = np.asarray(Phi, dtype=float)
-        Labeler = _labeler_class()
-        if Labeler is None or self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
-            return [None] * Phi.shape[1]
-        if getattr(self, "_labeler", None) is None:
-            from stepnf.geometry import outward_normals
-
-            mid = np.nonzero(self.midsurface)[0]
-            self._labeler = Labeler(self.points[mid, :2], mid, outward_normals(self.points, float(self.geometry["R"])),
-                                    float(self.geometry["a"]))
-        return [self._labeler.label(Phi[:, j].reshape(-1, 3)) for j in range(Phi.shape[1])]
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
@@ -322,30 +259,13 @@ def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:
 
 
 # ------------------------------------------------------------------ scene
-def _num(config: Mapping[str, Any], table: str, key: str, scene_file, *, positive: bool = True,
-         allow_inf: bool = False) -> float:
-    v = config.get(key)
-    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
-        return math.inf
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
-        kind = "a positive number" + (' or "inf"' if allow_inf else "")
-        raise SceneError(scene_file, f"{table}.{key}", f"expected {kind}, got {v!r}")
-    return float(v)
-
-
-def _check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene_file) -> None:
-    unknown = sorted(set(table) - set(known))
-    if unknown:
-        raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
-
-
 def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapter:
-    _check_keys(config, MODEL_KEYS, "model", scene_file)
+    cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
     run: dict[str, Any] = {}
     if "executable" in config:
         run["executable"] = str(config["executable"])
     if "timeout" in config:
-        run["timeout"] = _num(config, "model", "timeout", scene_file)
+        run["timeout"] = positive_number(config, "model", "timeout", scene_file)
     if "workdir" in config:
         run["workdir"] = base_dir / str(config["workdir"])
     if "keep" in config:
@@ -364,16 +284,7 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapt
             raise SceneError(scene_file, "model.template", f"template file {tpl} does not exist")
         run["template"] = tpl
 
-    mat = config.get("material", {})
-    if not isinstance(mat, Mapping):
-        raise SceneError(scene_file, "model.material", "expected a table with E, nu, rho")
-    _check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
-    material = {}
-    for k in MATERIAL_KEYS:
-        if k in mat:
-            material[k] = _num(mat, "model.material", k, scene_file)
-    if "nu" in material and not material["nu"] < 0.5:
-        raise SceneError(scene_file, "model.material.nu", f"expected 0 < nu < 0.5, got {material['nu']}")
+    material = cap_keys.material(config, scene_file, required="geometry" in config)
 
     element = config.get("element", "hex20")
     if element not in ELEMENTS:
@@ -388,21 +299,8 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapt
             if path.suffix.lower() != ".inp" or not path.is_file():
                 raise SceneError(scene_file, "model.mesh", f"expected an existing .inp file, got {str(path)!r}")
             return cls.from_inp(path, material=material, **run)
-        geom = config["geometry"]
-        if not isinstance(geom, Mapping):
-            raise SceneError(scene_file, "model.geometry", "expected a table")
-        _check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
-        shape = geom.get("shape", "spherical_cap")
-        if shape not in SHAPES:
-            raise SceneError(scene_file, "model.geometry.shape", f"got {shape!r}. Pick one of {allowed(SHAPES)}")
-        missing = [k for k in MATERIAL_KEYS if k not in material]
-        if missing:
-            raise SceneError(scene_file, "model.material", f"missing {missing}; a generated cap needs E, nu, rho")
-        a = _num(geom, "model.geometry", "a", scene_file)
-        R = _num(geom, "model.geometry", "R", scene_file, allow_inf=True)
-        h = _num(geom, "model.geometry", "h", scene_file)
-        resolution = {k: geom[k] for k in ("n_core", "n_ring", "n_thick", "core") if k in geom}
-        return cls.from_cap(a=a, R=R, h=h, resolution=resolution, **material, **run)
+        g = cap_keys.cap_geometry(config, scene_file)
+        return cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
     except ValueError as exc:
         if isinstance(exc, SceneError):
             raise

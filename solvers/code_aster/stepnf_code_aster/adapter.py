@@ -13,14 +13,16 @@ import numpy as np
 import scipy.sparse as sp
 
 from stepnf.errors import SceneError, SolverRunError, allowed
+from stepnf.geometry import keys as cap_keys
+from stepnf.geometry.keys import MATERIAL_KEYS, positive_number
+from stepnf.geometry.solid import CapSolid
 from stepnf.external import KEEP_POLICIES, CommandTemplate, ExternalSolverAdapter, missing_output, require_files
 
 from .med import MedError, add_nodal_field, read_mesh_nodes, read_nodal_steps, write_med
 
 MODEL_KEYS = ("element", "geometry", "material", "mesh", "mesh_name", "templates", "command", "version",
               "ncpus", "memory_mb", "timeout", "workdir", "keep", "parallel_runs")
-GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_core", "n_ring", "n_thick", "core")
-MATERIAL_KEYS = ("E", "nu", "rho")
+
 ELEMENTS = ("hex20",)
 TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export")
 COMPONENTS = ("DX", "DY", "DZ")
@@ -50,18 +52,7 @@ def triplets_to_matrix(values, rows, cols, n: int) -> sp.csr_matrix:
 
 
 
-def _labeler_class():
-    """The (k, n) mode labeler shared with the fenicsx adapter (pure numpy/scipy), or ``None``."""
-    import importlib
-
-    for module in ("stepnf.labels", "stepnf_fenicsx.labels"):
-        try:
-            return importlib.import_module(module).ModeLabeler
-        except (ImportError, AttributeError):
-            continue
-    return None
-
-class CodeAsterAdapter(ExternalSolverAdapter):
+class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
     """A solid model run by code_aster as a black box (``run_aster`` or a docker image).
 
     Dofs: ``DX, DY, DZ`` of every node of the MED mesh, node by node (dof
@@ -111,7 +102,7 @@ class CodeAsterAdapter(ExternalSolverAdapter):
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
         self._K: sp.csr_matrix | None = None
         self._M: sp.csr_matrix | None = None
-        self._sampler = None
+        self.hex20_cells = self.cells if cell_type == "hexahedron20" else None
         self.timings: dict[str, float] = {}
 
     @staticmethod
@@ -165,59 +156,6 @@ class CodeAsterAdapter(ExternalSolverAdapter):
     def stiffness_matrix(self) -> sp.csr_matrix:
         self._matrices()
         return self._K
-
-    def dof_coordinates(self) -> np.ndarray:
-        return np.repeat(self.points, 3, axis=0)
-
-    def dof_directions(self) -> np.ndarray:
-        return np.tile(np.arange(3), len(self.points))
-
-    def characteristic_length(self) -> float | None:
-        if "h" in self.geometry:
-            return float(self.geometry["h"])
-        return super().characteristic_length()
-
-    def shell_scales(self):
-        g = self.geometry
-        if g.get("shape") != "spherical_cap":
-            return None
-        from stepnf.shell import ShellScales
-
-        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], **self.material)
-
-    def transverse_amplitude(self, phi: np.ndarray) -> float | None:
-        """Largest |normal displacement| over the mid-surface (3 x 3 points per element, see :mod:`.midsurface`)."""
-        if self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
-            return None
-        from stepnf.geometry import outward_normals
-
-        U = np.asarray(phi, dtype=float).reshape(-1, 3)
-        if self.cells is not None and self.cell_type == "hexahedron20":
-            if self._sampler is None:
-                from .midsurface import midsurface_sampler
-
-                W, X = midsurface_sampler(self.points, self.cells, self.midsurface)
-                self._sampler = (W, outward_normals(X, float(self.geometry["R"])))
-            W, normals = self._sampler
-            if W.shape[0]:
-                return float(np.max(np.abs(np.einsum("ij,ij->i", W @ U, normals))))
-        sel = self.midsurface
-        w = np.einsum("ij,ij->i", U[sel], outward_normals(self.points[sel], float(self.geometry["R"])))
-        return float(np.max(np.abs(w)))
-
-    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
-        """(k, n) labels of cap modes (via the shared ModeLabeler), else ``None`` per mode."""
-        Phi = np.asarray(Phi, dtype=float)
-        Labeler = _labeler_class()
-        if Labeler is None or self.geometry.get("shape") != "spherical_cap" or self.midsurface is None:
-            return [None] * Phi.shape[1]
-        if getattr(self, "_labeler", None) is None:
-            from stepnf.geometry import outward_normals
-
-            mid = np.nonzero(self.midsurface)[0]
-            self._labeler = Labeler(self.points[mid, :2], mid, outward_normals(self.points, float(self.geometry["R"])),
-                                    float(self.geometry["a"]))
-        return [self._labeler.label(Phi[:, j].reshape(-1, 3)) for j in range(Phi.shape[1])]
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
@@ -324,24 +262,8 @@ class CodeAsterAdapter(ExternalSolverAdapter):
 
 
 # ------------------------------------------------------------------ scene
-def _num(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False) -> float:
-    v = table.get(key)
-    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
-        return math.inf
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        kind = 'a positive number or "inf"' if allow_inf else "a positive number"
-        raise SceneError(scene_file, f"{where}.{key}", f"expected {kind}, got {v!r}")
-    return float(v)
-
-
-def _check_keys(table: Mapping[str, Any], known, where: str, scene_file) -> None:
-    unknown = sorted(set(table) - set(known))
-    if unknown:
-        raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
-
-
 def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdapter:
-    _check_keys(config, MODEL_KEYS, "model", scene_file)
+    cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
     kw: dict[str, Any] = {}
     for key in ("command", "version", "mesh_name"):
         if key in config:
@@ -355,7 +277,7 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
                 raise SceneError(scene_file, f"model.{key}", f"expected a positive integer, got {v!r}")
             kw[key] = v
     if "timeout" in config:
-        kw["timeout"] = _num(config, "model", "timeout", scene_file)
+        kw["timeout"] = positive_number(config, "model", "timeout", scene_file)
     if "workdir" in config:
         kw["workdir"] = base_dir / str(config["workdir"])
     if "keep" in config:
@@ -368,11 +290,7 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
             raise SceneError(scene_file, "model.templates", f"template folder {folder} does not exist; it may hold "
                              f"any of {list(TEMPLATE_NAMES)}")
         kw["templates"] = folder
-    mat = config.get("material")
-    if not isinstance(mat, Mapping):
-        raise SceneError(scene_file, "model.material", "missing table with E, nu, rho")
-    _check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
-    material = {k: _num(mat, "model.material", k, scene_file) for k in MATERIAL_KEYS}
+    material = cap_keys.material(config, scene_file)
     element = config.get("element", "hex20")
     if element not in ELEMENTS:
         raise SceneError(scene_file, "model.element", f"got {element!r}. Pick one of {allowed(ELEMENTS)}")
@@ -384,17 +302,8 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
             if path.suffix.lower() not in (".med", ".rmed", ".mmed") or not path.is_file():
                 raise SceneError(scene_file, "model.mesh", f"expected an existing MED file, got {str(path)!r}")
             return cls.from_med(path, material=material, **kw)
-        geom = config["geometry"]
-        if not isinstance(geom, Mapping):
-            raise SceneError(scene_file, "model.geometry", "expected a table")
-        _check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
-        if geom.get("shape", "spherical_cap") != "spherical_cap":
-            raise SceneError(scene_file, "model.geometry.shape", f"got {geom.get('shape')!r}. Pick one of ['spherical_cap']")
-        a = _num(geom, "model.geometry", "a", scene_file)
-        R = _num(geom, "model.geometry", "R", scene_file, allow_inf=True)
-        h = _num(geom, "model.geometry", "h", scene_file)
-        res = {k: geom[k] for k in ("n_core", "n_ring", "n_thick", "core") if k in geom}
-        return cls.from_cap(a=a, R=R, h=h, resolution=res, **material, **kw)
+        g = cap_keys.cap_geometry(config, scene_file)
+        return cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **kw)
     except ValueError as exc:
         if isinstance(exc, SceneError):
             raise

@@ -48,10 +48,14 @@ def comm_self():
     return MPI.COMM_SELF
 
 
-def create_mesh(points: np.ndarray, cells: np.ndarray, cell_type: str):
-    """A serial dolfinx mesh from meshio-ordered (VTK) cells; returns ``(mesh, original_point_index)``.
+def create_mesh(points: np.ndarray, cells: np.ndarray, cell_type: str, comm=None):
+    """A dolfinx mesh from meshio-ordered (VTK) cells; returns ``(mesh, original_point_index)``.
 
-    ``original_point_index[i]`` is the row of ``points`` that became geometry node ``i``.
+    ``comm`` (default ``MPI.COMM_SELF``: a serial mesh) is the communicator the
+    mesh is distributed over; every rank may pass the whole mesh, only rank 0's
+    copy is used and dolfinx's graph partitioner distributes the cells.
+    ``original_point_index[i]`` is the row of ``points`` that became (local)
+    geometry node ``i``.
     """
     import ufl
     from dolfinx import cpp, mesh as dmesh
@@ -63,7 +67,13 @@ def create_mesh(points: np.ndarray, cells: np.ndarray, cell_type: str):
     perm = np.asarray(cpp.io.perm_vtk(ct, n_nodes))
     domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(name), degree))
     cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64)[:, perm])
-    msh = dmesh.create_mesh(comm_self(), cells, np.ascontiguousarray(points, dtype=float), domain)
+    points = np.ascontiguousarray(points, dtype=float)
+    if comm is None or comm.size == 1:
+        msh = dmesh.create_mesh(comm or comm_self(), cells, points, domain)
+    else:  # rank 0 hands in the mesh, the partitioner spreads the cells (no ghost cells: cell integrals only)
+        if comm.rank != 0:
+            cells, points = cells[:0], points[:0]
+        msh = dmesh.create_mesh(comm, cells, points, domain, ghost_mode=dmesh.GhostMode.none)
     return msh, np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
 
 

@@ -1,0 +1,86 @@
+"""Scene keys shared by every adapter that meshes the spherical cap (issue 3: one vocabulary).
+
+``[model.material]`` E, nu, rho and ``[model.geometry]`` shape, a, R (a number
+or "inf"), h and the O-grid resolution keys. Errors name the key and what is
+allowed, in the scene's file.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Sequence
+
+from ..errors import SceneError, allowed
+
+MATERIAL_KEYS = ("E", "nu", "rho")
+SHAPES = ("spherical_cap",)
+RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick", "core")
+GEOMETRY_KEYS = ("shape", "a", "R", "h") + RESOLUTION_KEYS
+
+
+def check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene_file) -> None:
+    """Refuse keys outside ``known`` in the table at ``where``."""
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
+
+
+def positive_number(table: Mapping[str, Any], where: str, key: str, scene_file, *,
+                    allow_inf: bool = False) -> float:
+    """``table[key]`` as a float > 0 (or ``inf`` when allowed, written ``"inf"``)."""
+    v = table.get(key)
+    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        kind = "a positive number" + (' or "inf"' if allow_inf else "")
+        raise SceneError(scene_file, f"{where}.{key}", f"expected {kind}, got {v!r}")
+    return float(v)
+
+
+def material(config: Mapping[str, Any], scene_file, *, required: bool = True) -> dict[str, float]:
+    """``[model.material]``: E > 0, 0 <= nu < 0.5, rho > 0 (all three when ``required``)."""
+    mat = config.get("material", {})
+    if not isinstance(mat, Mapping):
+        raise SceneError(scene_file, "model.material", "expected a table with E, nu, rho")
+    check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
+    missing = [k for k in MATERIAL_KEYS if k not in mat]
+    if required and missing:
+        raise SceneError(scene_file, f"model.material.{missing[0]}",
+                         f"missing (also missing: {missing[1:]}); the model needs E, nu, rho" if missing[1:]
+                         else "missing; the model needs E, nu, rho")
+    out = {}
+    for k in MATERIAL_KEYS:
+        if k not in mat:
+            continue
+        if k == "nu":
+            v = mat[k]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 0.5:
+                raise SceneError(scene_file, "model.material.nu", f"expected 0 <= nu < 0.5, got {v!r}")
+            out[k] = float(v)
+        else:
+            out[k] = positive_number(mat, "model.material", k, scene_file)
+    return out
+
+
+def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
+    """``[model.geometry]`` of a generated cap: ``{"shape", "a", "R", "h", "resolution"}``.
+
+    Refuses a non-shallow or impossible cap: R must exceed a (a sphere of
+    radius R has no cap wider than it), and h must be positive and below a.
+    """
+    geom = config.get("geometry")
+    if not isinstance(geom, Mapping):
+        raise SceneError(scene_file, "model.geometry", "expected a table with shape, a, R, h")
+    check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
+    shape = geom.get("shape", "spherical_cap")
+    if shape not in SHAPES:
+        raise SceneError(scene_file, "model.geometry.shape", f"got {shape!r}. Pick one of {allowed(SHAPES)}")
+    a = positive_number(geom, "model.geometry", "a", scene_file)
+    R = positive_number(geom, "model.geometry", "R", scene_file, allow_inf=True)
+    h = positive_number(geom, "model.geometry", "h", scene_file)
+    if R <= a:
+        raise SceneError(scene_file, "model.geometry.R", f"R = {R:g} must exceed the cap radius a = {a:g} "
+                         "(and be much larger for a shallow shell), or be \"inf\" for a plate")
+    if h >= a:
+        raise SceneError(scene_file, "model.geometry.h", f"h = {h:g} must be smaller than a = {a:g} (a thin shell)")
+    return {"shape": shape, "a": a, "R": R, "h": h,
+            "resolution": {k: geom[k] for k in RESOLUTION_KEYS if k in geom}}
