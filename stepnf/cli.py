@@ -111,6 +111,16 @@ def _cmd_curves(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fig4(args: argparse.Namespace) -> int:
+    from .compare import figure4, format_summary
+
+    res = figure4(args.stores, args.out, names=args.names.split(",") if args.names else None,
+                  n_kappa=args.n_kappa)
+    print(format_summary(res["summary"]))
+    print(f"figure: {res['figure']}\ntable: {res['table']}")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -149,6 +159,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_cv.add_argument("--no-plot", action="store_true", help="data only, no PNG")
     p_cv.add_argument("--quiet", "-q", action="store_true", help="no progress messages on stderr")
     p_cv.set_defaults(func=_cmd_curves)
+    p_f4 = sub.add_parser("fig4", help="FE points of sweeps on the von Karman Gamma(kappa) curves (paper Fig. 4)")
+    p_f4.add_argument("stores", nargs="+", help="sweep stores (HDF5) written by `stepnf sweep`")
+    p_f4.add_argument("--names", help="comma-separated legend names, one per store")
+    p_f4.add_argument("--out", default="results/fig4", help="output folder")
+    p_f4.add_argument("--n-kappa", type=int, default=300, help="points of the von Karman curves")
+    p_f4.set_defaults(func=_cmd_fig4)
     p_sol = sub.add_parser("solvers", help="list the installed solver adapters")
     p_sol.set_defaults(func=_cmd_solvers)
     args = parser.parse_args(argv)
