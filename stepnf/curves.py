@@ -7,8 +7,10 @@ For the von Karman shell model (:class:`stepnf.models.VonKarmanShell`) on a grid
   paper, :mod:`stepnf.evaluators`), in the model's normalisation (``int phi^2 dS = 1``
   over the unit disk, nondimensional time): ``w_NL = w_p (1 + T_p a^2)``;
 * ``Gamma = T_p / max|phi_p|^2`` (``w_NL / w_p = 1 + Gamma (W_max / h)^2``, DESIGN.md);
-* ``rho_p`` (paper Eq. 8, over the slave modes the master drives) and the mode it is
-  attained for;
+* ``rho_p`` (paper Eq. 8) and the mode it is attained for, as ``stepnf run`` computes it
+  (:func:`stepnf.pipeline.slow_fast_ratio`): over the slave modes the master drives
+  (``g^s_pp != 0``), degenerate twins excluded; at kappa = 0 (g = 0) over every non-twin
+  mode, hence a jump between the first two grid values for modes such as (3,0);
 * flags (bit field, :data:`FLAG_BITS`) naming why a value must not be trusted;
 
 and the nondimensional frequencies of the first modes versus kappa (Fig. 2).
@@ -45,7 +47,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .errors import StepnfError, allowed
-from .evaluators import Tolerances, coupled, md_modal, nf_modal, smd_modal
+from .evaluators import Tolerances, md_modal, nf_modal, smd_modal
 
 #: The six master modes of the paper's Fig. 3.
 DEFAULT_MODES: tuple[tuple[int, int], ...] = ((2, 0), (3, 0), (4, 0), (0, 1), (0, 2), (2, 1))
@@ -596,10 +598,12 @@ def draw_nonlinearity(curves: Curves, quantity: str = "T") -> Any:
 # ------------------------------------------------------------------ one call
 def write_all(curves: Curves, out_dir: str | Path, quantities: Sequence[str] = QUANTITIES,
               plots: bool = True) -> dict[str, Path]:
-    """HDF5, CSV, and (``plots``) the PNGs of Fig. 2 and of Fig. 3 for each quantity."""
+    """HDF5, CSV, ``summary.txt`` and (``plots``) the PNGs of Fig. 2 and of Fig. 3 for each quantity."""
     d = Path(out_dir)
     files = {"hdf5": write_hdf5(curves, d / "curves.h5")}
     files["csv"], files["frequencies_csv"] = write_csv(curves, d)
+    files["summary"] = d / "summary.txt"
+    files["summary"].write_text(format_summary(curves) + "\n")
     if plots:
         files["fig2"] = plot_frequencies(curves, d / "fig2_frequencies.png")
         for q in quantities:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -19,153 +19,23 @@ from .backbone import MethodResult
 from .checkpoint import Checkpoint
 from .counters import Counters
 from .deflation import DeflatedSolver
+from .diagnostics import (coupling_floor, floor_scale, one_two_flags, slow_fast_ratio, t_error,
+                          truncation_flags)
 from .errors import SceneError
-from .evaluators import (FullOrderContext, Tolerances, _resonance_flags, coupled, dnf, md_full, md_modal,
+from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
 from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
 from .modal import ModalBasis, modal_analysis, rigid_body_fields
 from .modal_model import ModalModel
+from .plan import resolve_masters, resolve_methods
 from .progress import Progress
 from .registry import get_solver
-from .results import ModeResult, RunResult, label_text, write_hdf5
-from .scene import Scene, parse_label
+from .results import ModeResult, RunResult, write_hdf5
+from .scene import Scene
 from .step import ForceEvaluator, full_step, step_amplitude, targeted_steps, targeted_steps_tangent
 
 MODAL_METHODS = {"nf", "md_modal", "smd_modal"}
 FULL_METHODS = {"dnf", "md_full", "smd_full"}
-
-
-def resolve_methods(methods: Sequence[str], qm_order: str) -> dict[str, str]:
-    """Map each requested name to its evaluator: ``md``/``smd`` follow ``qm_order``."""
-    out = {}
-    for m in methods:
-        if m in ("md", "smd"):
-            out[m] = f"{m}_{qm_order}"
-        else:
-            out[m] = m
-    return out
-
-
-def _label_matches(label: Any, want: Any) -> bool:
-    if label is None:
-        return False
-    if isinstance(want, tuple) and isinstance(label, (tuple, list)):
-        return tuple(int(x) for x in label[:2]) == want
-    return str(label) == str(want)
-
-
-def resolve_masters(scene: Scene, labels: Sequence[Any], n_modes: int, *, complete: bool) -> list[int] | None:
-    """Elastic-mode indices of the scene's master modes; None when more modes are needed.
-
-    Raises :class:`SceneError` when a label or index cannot exist.
-    """
-    out = []
-    for i, m in enumerate(scene.master_modes):
-        if isinstance(m, int):
-            if m >= n_modes:
-                if complete:
-                    raise SceneError(scene.file, f"analysis.master_modes[{i}]",
-                                     f"mode {m} does not exist: the model has {n_modes} elastic modes (0..{n_modes - 1})")
-                return None
-            out.append(m)
-            continue
-        want = parse_label(m) or m
-        hits = [s for s, lab in enumerate(labels) if _label_matches(lab, want)]
-        if not hits:
-            if complete:
-                found = sorted({label_text(x) for x in labels if x is not None})
-                raise SceneError(scene.file, f"analysis.master_modes[{i}]",
-                                 f"no mode is labelled {m!r} among the {n_modes} modes computed; "
-                                 f"labels found: {found}")
-            return None
-        out.append(hits[0])
-    if len(set(out)) != len(out):
-        raise SceneError(scene.file, "analysis.master_modes", f"two entries name the same mode: {out}")
-    return out
-
-
-def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
-                    twins: Sequence[int], floor: np.ndarray | float | None = None) -> tuple[float | None, int | None]:
-    """rho_p = min over coupled slave modes s of w_s / w_p (paper Eq. 8).
-
-    Slaves are the modes that the master drives through ``g^s_pp`` (others
-    cannot break the slow/fast assumption); when none couples, every
-    non-twin slave counts, as in the paper's literal definition.
-    """
-    cp = coupled(g, tol.coupling, floor)
-    cand = [s for s in range(len(omega)) if s != p and cp[s]]
-    if not cand:
-        cand = [s for s in range(len(omega)) if s != p and s not in twins]
-    if not cand:
-        return None, None
-    r = omega[cand] / omega[p]
-    j = int(np.argmin(r))
-    return float(r[j]), int(cand[j])
-
-
-def floor_scale(st, M: sp.spmatrix, tol: Tolerances) -> float:
-    """``tol.coupling * ||G(phi_p, phi_p)||`` in the lumped ``M^-1`` norm (bounds every ``|g^s_pp|``)."""
-    dm = np.asarray(M.diagonal()).ravel()
-    return tol.coupling * float(np.sqrt(np.sum(st.Gv**2 / np.where(dm > 0, dm, np.inf))))
-
-
-def _one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext, floor0: float,
-                   tol: Tolerances, adapter: SolverAdapter, counters: Counters) -> list[dict]:
-    """DNF's 1:2 check: the modes nearest ``2 w_p``, found with the DNF's own ``K - 4 w^2 M`` factors."""
-    top = basis.omega[-1] if basis.n_elastic else 0.0
-    if basis.complete or top >= 2.0 * w * (1 + tol.resonance):
-        near_w, near_phi = basis.omega, basis.phi  # every mode near 2 w_p is among the computed ones
-    else:
-        near_w, near_phi = _ritz_near(ctx, 4 * w * w, st.Gv, counters)
-    g = near_phi.T @ st.Gv
-    floor = np.full(len(g), floor0)
-    if st.Gv_check is not None:
-        floor = np.maximum(floor, 10.0 * np.abs(near_phi.T @ (st.Gv - st.Gv_check)))
-    labels = adapter.mode_labels(near_phi) if not basis.complete else list(adapter.mode_labels(near_phi))
-    flags = []
-    for j in np.nonzero(coupled(g, tol.coupling, floor))[0]:
-        r = near_w[j] / w
-        if abs(r - 2.0) > 2.0 * tol.resonance:
-            continue
-        hit = np.nonzero(np.isclose(basis.omega, near_w[j], rtol=1e-9))[0]
-        s_idx = int(hit[0]) if len(hit) else None
-        name = (f"mode {s_idx}" if s_idx is not None else f"a mode at w = {near_w[j]:.6g}") + \
-            (f" {labels[j]}" if labels[j] is not None else "")
-        flags.append({"kind": "internal_resonance_1_2", "mode": s_idx, "label": labels[j], "ratio": float(r),
-                      "omega": float(near_w[j]),
-                      "message": f"DNF: {name} is in 1:2 internal resonance with master mode {p} "
-                                 f"(w_s/w_p = {r:.4f}); the normal form has a small denominator there"})
-    return flags
-
-
-def _ritz_near(ctx: FullOrderContext, sigma: float, Gv: np.ndarray, counters: Counters,
-               steps: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """Rayleigh-Ritz on ``span{Z^-1 Gv, (Z^-1 M)^2 Gv, ...}``, ``Z = K - sigma M`` (DNF's factors).
-
-    Inverse iteration from ``G(phi_p, phi_p)`` amplifies exactly the modes that
-    are both coupled to the master and near ``sqrt(sigma) = 2 w_p``, so three
-    solves find the modes a 1:2 resonance could come from.
-    """
-    Z = ctx.shifted_factorization(sigma, "")
-    R = ctx.Kpinv.R
-    v = Gv - ctx.M @ (R @ (R.T @ Gv)) if R.shape[1] else Gv
-    V = []
-    for _ in range(steps):
-        v = Z.solve(v, count=False)
-        counters.eigensolver_solves += 1
-        V.append(v)
-        v = ctx.M @ v
-    V = np.column_stack(V)
-    Mr = V.T @ (ctx.M @ V)
-    Kr = V.T @ (ctx.K @ V)
-    d = np.sqrt(np.abs(np.diag(Mr)))
-    Mr, Kr, V = Mr / np.outer(d, d), Kr / np.outer(d, d), V / d
-    lam, y = np.linalg.eigh(Mr)
-    keep = lam > 1e-12 * lam.max()  # drop directions the iteration made dependent
-    T = y[:, keep] / np.sqrt(lam[keep])
-    mu, z = np.linalg.eigh(T.T @ Kr @ T)
-    phi = V @ (T @ z)
-    return np.sqrt(np.maximum(mu, 0.0)), phi
 
 
 def _adapter_shifted(shift_solver, n: int, counters: Counters):
@@ -185,57 +55,6 @@ class _DeflatedPinv:
 
     def __call__(self, b: np.ndarray) -> np.ndarray:
         return self.solver.pinv(b)
-
-
-def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.ndarray:
-    """Per-mode threshold under which ``g^s_pp`` counts as zero (uncoupled by symmetry).
-
-    ``tol.coupling`` times ``||G(phi_p, phi_p)||`` in the (lumped) ``M^-1``
-    norm, which bounds every ``|g^s_pp|`` of M-normalised modes, and at least
-    ten times the change of ``g^s_pp`` between the two STEP amplitudes (the
-    noise the solver's forces carry).
-    """
-    floor = np.full(Phi.shape[1], floor_scale(st, M, tol))
-    if st.Gv_check is not None:
-        floor = np.maximum(floor, 10.0 * np.abs(Phi.T @ (st.Gv - st.Gv_check)))
-    return floor
-
-
-def captured_fraction(Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix) -> float:
-    """Share of ``G(phi_p, phi_p)`` the retained modes carry: ``sum_S g_s^2 / (Gv^T M^-1 Gv)``.
-
-    The modal sums of NF, MD and SMD see only that share; the rest lies on
-    modes not retained (in-plane and thickness modes of a 3D solid). M^-1 by
-    Jacobi-preconditioned CG (M is well conditioned).
-    """
-    import scipy.sparse.linalg as spla
-
-    total2 = float(Gv @ Gv)
-    if total2 == 0.0:
-        return 1.0
-    d = np.asarray(M.diagonal()).ravel()
-    x, info = spla.cg(M, Gv, M=sp.diags(1.0 / d), tol=1e-10, atol=0.0, maxiter=500)
-    full = float(Gv @ x)
-    return float(np.sum(g_retained**2) / full) if full > 0 else 1.0
-
-
-def truncation_flags(r: MethodResult, Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix,
-                     n: int, threshold: float = 0.99) -> list[dict]:
-    """Flag a modal-sum result whose retained modes miss more than 1% of the quadratic force."""
-    frac = captured_fraction(Gv, g_retained, M)
-    r.extra["captured_fraction"] = frac
-    if frac >= threshold:
-        return []
-    return [{"kind": "modal_truncation", "value": frac,
-             "message": f"{r.method.upper()}: the {n} retained modes carry only {100 * frac:.3g}% of "
-                        "G(phi_p, phi_p) (M^-1 norm); the rest lies on modes not retained (in-plane and "
-                        "thickness modes of a 3D model). Use dnf, or md/smd with qm_order = \"full\"."}]
-
-
-def _t_error(T: float, T2: float) -> float:
-    if not (np.isfinite(T) and np.isfinite(T2)):
-        return 0.0 if T == T2 else float("inf")
-    return abs(T - T2) / abs(T) if T != 0 else (0.0 if T2 == 0 else float("inf"))
 
 
 def _modal_method(name: str, p: int, omega, g, h, S, tol, labels, floor=None) -> MethodResult:
@@ -264,7 +83,9 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
     else:
         with progress.stage("model", f"setting up the {scene.solver} model"):
             adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
-        if write and scene.write_hdf5:
+        # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
+        # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
+        if write and scene.write_hdf5 and not getattr(adapter, "collective", False):
             checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
         try:
             result = _run_adapter(scene, adapter, progress, checkpoint)
@@ -483,14 +304,14 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     r = _modal_method(ev, p, omega, g_mod, h_mod, S, tol, labels, floor)
                     if g_chk is not None:
                         r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels, floor)
-                        r.T_error = _t_error(r.T, r2.T)
+                        r.T_error = t_error(r.T, r2.T)
                     if st is not None:
                         r.flags += truncation_flags(r, st.Gv, g_all[S], M, len(S))
                 elif ev == "dnf":
                     dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
                     dh = st.h - st.h_check if st.h_check is not None else 0.0
                     r, y = dnf(p, phi, omega[p], st.Gv, st.h, context(), dGv=dG, dh=dh)
-                    r.flags += _one_two_flags(p, omega[p], st, basis, context(), floor_scale(st, M, tol),
+                    r.flags += one_two_flags(p, omega[p], st, basis, context(), floor_scale(st, M, tol),
                                               tol, adapter, counters)
                 elif ev == "smd_full":
                     r = smd_full(p, phi, omega[p], st.Gv, st.h, context(), y=y)
@@ -498,7 +319,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                         S = np.arange(m)
                         a = smd_modal(p, omega, g_all, st.h, S, tol=tol, floor=floor)
                         b = smd_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol, floor=floor)
-                        r.T_error = _t_error(a.T, b.T)
+                        r.T_error = t_error(a.T, b.T)
                 elif ev == "md_full":
                     tw = Phi[:, twins] if twins else None
                     nr = basis.rigid.shape[1]
@@ -510,7 +331,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                         S = np.array([s for s in range(m) if s not in twins])
                         a = md_modal(p, omega, g_all, st.h, S, tol=tol, floor=floor)
                         b = md_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol, floor=floor)
-                        r.T_error = _t_error(a.T, b.T)
+                        r.T_error = t_error(a.T, b.T)
                 else:  # pragma: no cover - resolve_methods only yields the above
                     raise KeyError(ev)
                 r.method = name

@@ -30,6 +30,7 @@ from __future__ import annotations
 import copy
 import itertools
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -248,6 +249,8 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
     if not todo:
         return report
     address = scheduler or sweep.scheduler
+    # Dask's own INFO chatter (event-loop warnings while FE workers compute) would bury the progress
+    logging.getLogger("distributed").setLevel(logging.WARNING)
     cluster = None
     if address:
         client = Client(address)

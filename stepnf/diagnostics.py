@@ -1,0 +1,155 @@
+"""Indicators and flags around the evaluators: coupling, slow/fast ratio, 1:2 check, modal truncation.
+
+Each says something the numbers alone do not: which slave modes the master
+really drives (the coupling floor), how far the slow/fast assumption of the
+quadratic manifolds holds (rho_p), whether a mode near twice the master's
+frequency makes the normal form's denominator small, and how much of the
+quadratic force the modal sums can see.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .adapter import SolverAdapter
+from .backbone import MethodResult
+from .counters import Counters
+from .evaluators import FullOrderContext, Tolerances, coupled
+from .modal import ModalBasis
+
+
+def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
+                    twins: Sequence[int], floor: np.ndarray | float | None = None) -> tuple[float | None, int | None]:
+    """rho_p = min over coupled slave modes s of w_s / w_p (paper Eq. 8).
+
+    Slaves are the modes that the master drives through ``g^s_pp`` (others
+    cannot break the slow/fast assumption); when none couples, every
+    non-twin slave counts, as in the paper's literal definition.
+    """
+    cp = coupled(g, tol.coupling, floor)
+    cand = [s for s in range(len(omega)) if s != p and cp[s]]
+    if not cand:
+        cand = [s for s in range(len(omega)) if s != p and s not in twins]
+    if not cand:
+        return None, None
+    r = omega[cand] / omega[p]
+    j = int(np.argmin(r))
+    return float(r[j]), int(cand[j])
+
+
+def floor_scale(st, M: sp.spmatrix, tol: Tolerances) -> float:
+    """``tol.coupling * ||G(phi_p, phi_p)||`` in the lumped ``M^-1`` norm (bounds every ``|g^s_pp|``)."""
+    dm = np.asarray(M.diagonal()).ravel()
+    return tol.coupling * float(np.sqrt(np.sum(st.Gv**2 / np.where(dm > 0, dm, np.inf))))
+
+
+def one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext, floor0: float,
+                   tol: Tolerances, adapter: SolverAdapter, counters: Counters) -> list[dict]:
+    """DNF's 1:2 check: the modes nearest ``2 w_p``, found with the DNF's own ``K - 4 w^2 M`` factors."""
+    top = basis.omega[-1] if basis.n_elastic else 0.0
+    if basis.complete or top >= 2.0 * w * (1 + tol.resonance):
+        near_w, near_phi = basis.omega, basis.phi  # every mode near 2 w_p is among the computed ones
+    else:
+        near_w, near_phi = ritz_near(ctx, 4 * w * w, st.Gv, counters)
+    g = near_phi.T @ st.Gv
+    floor = np.full(len(g), floor0)
+    if st.Gv_check is not None:
+        floor = np.maximum(floor, 10.0 * np.abs(near_phi.T @ (st.Gv - st.Gv_check)))
+    labels = adapter.mode_labels(near_phi) if not basis.complete else list(adapter.mode_labels(near_phi))
+    flags = []
+    for j in np.nonzero(coupled(g, tol.coupling, floor))[0]:
+        r = near_w[j] / w
+        if abs(r - 2.0) > 2.0 * tol.resonance:
+            continue
+        hit = np.nonzero(np.isclose(basis.omega, near_w[j], rtol=1e-9))[0]
+        s_idx = int(hit[0]) if len(hit) else None
+        name = (f"mode {s_idx}" if s_idx is not None else f"a mode at w = {near_w[j]:.6g}") + \
+            (f" {labels[j]}" if labels[j] is not None else "")
+        flags.append({"kind": "internal_resonance_1_2", "mode": s_idx, "label": labels[j], "ratio": float(r),
+                      "omega": float(near_w[j]),
+                      "message": f"DNF: {name} is in 1:2 internal resonance with master mode {p} "
+                                 f"(w_s/w_p = {r:.4f}); the normal form has a small denominator there"})
+    return flags
+
+
+def ritz_near(ctx: FullOrderContext, sigma: float, Gv: np.ndarray, counters: Counters,
+               steps: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Rayleigh-Ritz on ``span{Z^-1 Gv, (Z^-1 M)^2 Gv, ...}``, ``Z = K - sigma M`` (DNF's factors).
+
+    Inverse iteration from ``G(phi_p, phi_p)`` amplifies exactly the modes that
+    are both coupled to the master and near ``sqrt(sigma) = 2 w_p``, so three
+    solves find the modes a 1:2 resonance could come from.
+    """
+    Z = ctx.shifted_factorization(sigma, "")
+    R = ctx.Kpinv.R
+    v = Gv - ctx.M @ (R @ (R.T @ Gv)) if R.shape[1] else Gv
+    V = []
+    for _ in range(steps):
+        v = Z.solve(v, count=False)
+        counters.eigensolver_solves += 1
+        V.append(v)
+        v = ctx.M @ v
+    V = np.column_stack(V)
+    Mr = V.T @ (ctx.M @ V)
+    Kr = V.T @ (ctx.K @ V)
+    d = np.sqrt(np.abs(np.diag(Mr)))
+    Mr, Kr, V = Mr / np.outer(d, d), Kr / np.outer(d, d), V / d
+    lam, y = np.linalg.eigh(Mr)
+    keep = lam > 1e-12 * lam.max()  # drop directions the iteration made dependent
+    T = y[:, keep] / np.sqrt(lam[keep])
+    mu, z = np.linalg.eigh(T.T @ Kr @ T)
+    phi = V @ (T @ z)
+    return np.sqrt(np.maximum(mu, 0.0)), phi
+
+
+def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.ndarray:
+    """Per-mode threshold under which ``g^s_pp`` counts as zero (uncoupled by symmetry).
+
+    ``tol.coupling`` times ``||G(phi_p, phi_p)||`` in the (lumped) ``M^-1``
+    norm, which bounds every ``|g^s_pp|`` of M-normalised modes, and at least
+    ten times the change of ``g^s_pp`` between the two STEP amplitudes (the
+    noise the solver's forces carry).
+    """
+    floor = np.full(Phi.shape[1], floor_scale(st, M, tol))
+    if st.Gv_check is not None:
+        floor = np.maximum(floor, 10.0 * np.abs(Phi.T @ (st.Gv - st.Gv_check)))
+    return floor
+
+
+def captured_fraction(Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix) -> float:
+    """Share of ``G(phi_p, phi_p)`` the retained modes carry: ``sum_S g_s^2 / (Gv^T M^-1 Gv)``.
+
+    The modal sums of NF, MD and SMD see only that share; the rest lies on
+    modes not retained (in-plane and thickness modes of a 3D solid). M^-1 by
+    Jacobi-preconditioned CG (M is well conditioned).
+    """
+    import scipy.sparse.linalg as spla
+
+    total2 = float(Gv @ Gv)
+    if total2 == 0.0:
+        return 1.0
+    d = np.asarray(M.diagonal()).ravel()
+    x, info = spla.cg(M, Gv, M=sp.diags(1.0 / d), tol=1e-10, atol=0.0, maxiter=500)
+    full = float(Gv @ x)
+    return float(np.sum(g_retained**2) / full) if full > 0 else 1.0
+
+
+def truncation_flags(r: MethodResult, Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix,
+                     n: int, threshold: float = 0.99) -> list[dict]:
+    """Flag a modal-sum result whose retained modes miss more than 1% of the quadratic force."""
+    frac = captured_fraction(Gv, g_retained, M)
+    r.extra["captured_fraction"] = frac
+    if frac >= threshold:
+        return []
+    return [{"kind": "modal_truncation", "value": frac,
+             "message": f"{r.method.upper()}: the {n} retained modes carry only {100 * frac:.3g}% of "
+                        "G(phi_p, phi_p) (M^-1 norm); the rest lies on modes not retained (in-plane and "
+                        "thickness modes of a 3D model). Use dnf, or md/smd with qm_order = \"full\"."}]
+
+
+def t_error(T: float, T2: float) -> float:
+    if not (np.isfinite(T) and np.isfinite(T2)):
+        return 0.0 if T == T2 else float("inf")
+    return abs(T - T2) / abs(T) if T != 0 else (0.0 if T2 == 0 else float("inf"))
