@@ -31,6 +31,20 @@ def _cmd_solvers(args: argparse.Namespace) -> int:
     return 0
 
 
+def _mpi_rank() -> int:
+    """This process's rank when started by ``mpirun``/``srun`` (0 otherwise), from the launcher's environment.
+
+    Read from the environment so that stepnf never imports MPI itself.
+    """
+    import os
+
+    for key in ("OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK"):
+        value = os.environ.get(key, "")
+        if value.isdigit():
+            return int(value)
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .pipeline import run_scene
     from .progress import Progress
@@ -42,10 +56,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from pathlib import Path
 
         scene.output_dir = Path(args.output)
-    if args.no_hdf5:
+    rank = _mpi_rank()
+    if args.no_hdf5 or rank:
         scene.write_hdf5 = False
-    progress = Progress(enabled=not args.quiet)
+    progress = Progress(enabled=not args.quiet and not rank)
     result = run_scene(scene, progress=progress)
+    if rank:  # under mpirun every rank computes the same results; rank 0 alone writes and prints
+        return 0
     if scene.plot and not args.no_plot:
         try:
             from .plots import plot_mode_shapes

@@ -213,6 +213,7 @@ def run_case(data: dict, file: str, base_dir: str) -> dict:
     from .pipeline import run_scene
     from .scene import parse_scene
 
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # in the worker too
     scene = parse_scene(data, file=Path(file), base_dir=Path(base_dir))
     t0 = time.perf_counter()
     res = run_scene(scene, write=False)

@@ -126,3 +126,35 @@ def dof_layout(V) -> tuple[np.ndarray, int]:
 
 def set_values(fn, values: np.ndarray) -> None:
     fn.x.array[:] = values
+
+
+def comm_world():
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD
+
+
+def world_size() -> int:
+    """Number of MPI processes this program was started with (1 without ``mpirun``)."""
+    return int(comm_world().size)
+
+
+def assemble_petsc_matrix(compiled):
+    """Assemble a bilinear form into a (distributed) PETSc matrix, no boundary conditions; caller owns it."""
+    from dolfinx.fem import petsc
+
+    A = petsc.assemble_matrix(compiled)
+    A.assemble()
+    return A
+
+
+def assemble_owned(compiled, n_owned: int) -> np.ndarray:
+    """Assemble a linear form over a distributed mesh: ghost contributions added to their owners.
+
+    Returns the ``n_owned`` owned entries (``index_map.size_local * bs``, first in the local array).
+    """
+    from dolfinx import fem, la
+
+    vec = fem.assemble_vector(compiled)
+    vec.scatter_reverse(la.ScatterMode.add)
+    return np.array(vec.array[:n_owned], copy=True)

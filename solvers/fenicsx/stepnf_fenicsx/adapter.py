@@ -1,4 +1,8 @@
-"""The ``fenicsx`` adapter: a St Venant-Kirchhoff solid assembled by FEniCSx (serial).
+"""The ``fenicsx`` adapter: a St Venant-Kirchhoff solid assembled by FEniCSx.
+
+Serial by default; under ``mpirun -n N`` (N > 1) :meth:`FenicsxAdapter.cap`
+and :meth:`FenicsxAdapter.from_config` build the distributed variant
+(:mod:`stepnf_fenicsx.parallel`), whose dof order is PETSc's global one.
 
 Dofs are FEniCSx's own order of the vector P2/Q2 space: node-major,
 ``(ux, uy, uz)`` of node 0, then node 1, ... (``dof_directions`` = 0, 1, 2
@@ -69,7 +73,7 @@ class FenicsxAdapter(SolverAdapter):
         self.geometry = None if geometry is None else dict(geometry)
         self.degree = int(degree)
         self.quadrature_degree = int(quadrature_degree)
-        msh, _ = _compat.create_mesh(mesh.points, mesh.cells, mesh.cell_type)
+        msh, _ = _compat.create_mesh(mesh.points, mesh.cells, mesh.cell_type, comm=self._mesh_comm())
         self._V = _compat.vector_space(msh, self.degree)
         self._nodes, bs = _compat.dof_layout(self._V)
         assert bs == 3
@@ -80,7 +84,20 @@ class FenicsxAdapter(SolverAdapter):
         self._labeler: ModeLabeler | None = None
         self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
 
+    def _mesh_comm(self):
+        """Communicator of the dolfinx mesh: ``None`` (``COMM_SELF``, serial) here."""
+        return None
+
     # ------------------------------------------------------------ construction
+    @classmethod
+    def _class_for_world(cls) -> type["FenicsxAdapter"]:
+        """This class, or :class:`~stepnf_fenicsx.parallel.DistributedFenicsxAdapter` under ``mpirun -n N>1``."""
+        if cls is FenicsxAdapter and _compat.world_size() > 1:
+            from .parallel import DistributedFenicsxAdapter
+
+            return DistributedFenicsxAdapter
+        return cls
+
     @classmethod
     def cap(cls, a: float, R: float, h: float, *, E: float, nu: float, rho: float, element: str = "hex27",
             quadrature_degree: int = 4, **resolution: Any) -> "FenicsxAdapter":
@@ -92,8 +109,8 @@ class FenicsxAdapter(SolverAdapter):
             from stepnf.geometry.tets import hex27_to_tetra
 
             mesh = hex27_to_tetra(mesh)
-        return cls(mesh, Material(E, nu, rho), geometry={"a": a, "R": R, "h": h},
-                   quadrature_degree=quadrature_degree)
+        return cls._class_for_world()(mesh, Material(E, nu, rho), geometry={"a": a, "R": R, "h": h},
+                                      quadrature_degree=quadrature_degree)
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
@@ -111,7 +128,8 @@ class FenicsxAdapter(SolverAdapter):
             mesh = read_mesh(p["mesh"])
         except Exception as exc:  # meshio raises many kinds
             raise SceneError(scene_file, "model.mesh", f"cannot read {str(p['mesh'])!r}: {exc}") from exc
-        return cls(mesh, Material(**mat), geometry=p["geometry"], quadrature_degree=p["quadrature_degree"])
+        return cls._class_for_world()(mesh, Material(**mat), geometry=p["geometry"],
+                                      quadrature_degree=p["quadrature_degree"])
 
     # ------------------------------------------------------------ required API
     @property
