@@ -129,8 +129,12 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
         points += fe_points(s, n)
     vonkarman_at(points, nu)
     modes = sorted({p.mode for p in points}, key=lambda m: (m[1], m[0]))
-    kmax = max(p.kappa for p in points) * 1.05 if points else 100.0
-    curves = compute_curves(CurveOptions(kappa_max=max(kmax, 1.0), n_kappa=n_kappa, modes=tuple(modes), nu=nu))
+    kpos = [p.kappa for p in points if p.kappa > 0]
+    # Table 2 spans kappa from 1 to 6000: a logarithmic axis (a plate point, kappa = 0, sits at its left end)
+    lo = min(kpos) / 1.5 if kpos else 0.1
+    hi = max(kpos) * 1.5 if kpos else 100.0
+    grid = np.geomspace(lo, hi, n_kappa)
+    curves = compute_curves(CurveOptions(kappas=tuple(grid), modes=tuple(modes), nu=nu))
     ncol = 3
     nrow = int(np.ceil(len(modes) / ncol))
     fig, axes = plt.subplots(nrow, ncol, figsize=(5 * ncol, 3.8 * nrow), squeeze=False)
@@ -140,6 +144,7 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
         ax.plot(curves.kappa, curves.plotted("nf", "gamma")[i], "m-", lw=1.5, label="von Karman, NF")
         for j, n in enumerate(names):
             pts = [p for p in points if p.store == n and p.mode == mode and np.isfinite(p.gamma_fe)]
+            pts = [Point(**{**p.__dict__, "kappa": max(p.kappa, lo)}) for p in pts]
             ok = [p for p in pts if not p.resonant]
             rs = [p for p in pts if p.resonant]
             ax.plot([p.kappa for p in ok], [p.gamma_fe for p in ok], markers[j % 5], mfc="none", label=f"{n}, DNF")
@@ -148,6 +153,7 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
                         label=f"{n}, near resonance")
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_title(f"mode ({mode[0]},{mode[1]})")
+        ax.set_xscale("log")
         ax.set_xlabel("kappa")
         ax.set_ylabel("Gamma")
         lo, hi = np.nanpercentile(np.r_[curves.plotted("nf", "gamma")[i], [p.gamma_fe for p in points
