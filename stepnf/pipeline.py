@@ -191,6 +191,13 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         # the 1:1 checks need the modes just above the highest master (1:2 is checked locally)
         return b.complete or b.omega[-1] >= (1 + tol.resonance) * max(b.omega[i] for i in ms)
 
+    policy = scene.step
+    if policy.relative_amplitude is None and adapter.step_relative_amplitude is not None:
+        policy = replace(policy, relative_amplitude=float(adapter.step_relative_amplitude))
+    if policy.method == "tangent" and not adapter.provides_tangent_stiffness:
+        raise SceneError(scene.file, "analysis.step.method",
+                         f"'tangent' needs a solver that provides tangent stiffness; {scene.solver!r} does not. "
+                         "Allowed here: ['forces']")
     eig = adapter.eigenmodes if adapter.provides_eigenmodes else None
     X, dirs = adapter.dof_coordinates(), adapter.dof_directions()
     cands = rigid_body_fields(X, dirs) if X is not None and dirs is not None else None
@@ -199,7 +206,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                                rigid_modes=scene.rigid_modes, degeneracy_tolerance=scene.degeneracy_tolerance,
                                max_modes=scene.max_modes, backend=backend, eigensolver=eig, enough=enough,
                                rigid_candidates=cands, progress=progress.message)
-    labels = labels_of(basis) if any(isinstance(x, str) for x in scene.master_modes) else list(adapter.mode_labels(basis.phi))
+    labels = labels_of(basis)
     masters = resolve_masters(scene, labels, basis.n_elastic, complete=True)
     assert masters is not None
     omega, Phi = basis.omega, basis.phi
@@ -218,13 +225,6 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                             batch_size=1024 if adapter.prefers_batches else 64, checkpoint=checkpoint)
     need_targeted = bool(evaluators & FULL_METHODS) or (bool(evaluators & MODAL_METHODS) and scene.tensors != "full")
     steps = {}
-    policy = scene.step
-    if policy.relative_amplitude is None and adapter.step_relative_amplitude is not None:
-        policy = replace(policy, relative_amplitude=float(adapter.step_relative_amplitude))
-    if policy.method == "tangent" and not adapter.provides_tangent_stiffness:
-        raise SceneError(scene.file, "analysis.step.method",
-                         f"'tangent' needs a solver that provides tangent stiffness; {scene.solver!r} does not. "
-                         "Allowed here: ['forces']")
     if need_targeted:
         qs = np.array([step_amplitude(Phi[:, p], policy, length, mask) for p in masters])
         per = 4 if policy.check else 2
