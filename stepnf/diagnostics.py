@@ -145,8 +145,8 @@ def truncation_flags(r: MethodResult, Gv: np.ndarray, g_retained: np.ndarray, M:
         return []
     return [{"kind": "modal_truncation", "value": frac,
              "message": f"{r.method.upper()}: the {n} retained modes carry only {100 * frac:.3g}% of "
-                        "G(phi_p, phi_p) (M^-1 norm); the rest lies on modes not retained (in-plane and "
-                        "thickness modes of a 3D model). Use dnf, or md/smd with qm_order = \"full\"."}]
+                        "G(phi_p, phi_p) (M^-1 norm); the rest lies on modes not retained (in-plane modes, "
+                        "and thickness modes of a 3D model). Use dnf, or md/smd with qm_order = \"full\"."}]
 
 
 def t_error(T: float, T2: float) -> float:
