@@ -1,0 +1,237 @@
+"""The ``fenicsx_shell`` adapter: a Marguerre (von Karman) shallow spherical shell with FEniCSx (serial).
+
+The finite-element counterpart of the paper's analytical model (its
+section 2.1), an independent route to the same equations: in-plane
+displacements ``(u, v)`` and transverse deflection ``w`` on the plan-view disk
+of radius ``a``, mid-surface ``z0 = -(x^2 + y^2) / (2 R)``, free edge; strain
+energy and discretisation in :mod:`stepnf_fenicsx.shallow_shell_forms`
+(membrane strain with the Marguerre term, bending by a C0 interior-penalty
+method on continuous P3 (or P2) ``w``). The internal force is an exact cubic.
+Mesh: curved 6-node triangles on concentric rings
+(:mod:`stepnf_fenicsx.shallow_shell_mesh`, numpy only).
+
+Dofs: one blocked P3 (or P2) space, node-major ``(u, v, w)`` of node 0, node
+1, ... (``dof_directions`` = 0, 1, 2 repeated); ``dof_coordinates`` puts each
+node on the mid-surface ``(x, y, z0(x, y))``. With these coordinates the six
+rigid motions of :func:`stepnf.modal.rigid_body_fields` are *exact*
+zero-energy fields of the discrete model (a rotation about ``e_y`` is
+``w = -x``, ``u = z0`` up to a translation, which makes the linear membrane
+strain vanish; the forms use the interpolant of z0 for this), so the model
+has exactly six rigid-body modes and the pipeline's rigid detection finds them.
+
+In-plane inertia (``inplane_inertia``): the von Karman equations neglect it
+(quasi-static in-plane motion). A zero in-plane mass would make ``M``
+singular (no M-normalised in-plane rigid modes), so ``inplane_inertia =
+false`` (default) scales the in-plane kinetic energy by
+:data:`INPLANE_MASS_FACTOR` = 1e-3 instead: the in-plane modes move up by
+``1/sqrt(1e-3) = 32`` (to w_bar > 8000 for a = 50 h), which changes the NF/DNF
+denominators ``w_s^2 - 4 w_p^2`` of the in-plane modes by
+``4 w_p^2 / w_s^2 < 1e-4`` relative for w_bar_p < 40 (measured: Gamma of the
+six test modes moves by < 1e-4 relative between the factors 1e-3, 1e-4 and 1e-6).
+``inplane_inertia = true`` is the Marguerre shell with full inertia
+``rho h (u'^2 + v'^2 + w'^2)``.
+
+Units: those of the scene (SI for the examples); frequencies in rad/s.
+"""
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import scipy.sparse as sp
+
+from stepnf.adapter import SolverAdapter
+from stepnf.errors import SceneError
+from stepnf.geometry.labels import ModeLabeler
+
+from . import _compat
+from .shallow_shell_config import DEFAULTS, parse_shell_model
+from .shallow_shell_mesh import disk_triangle6
+
+#: In-plane mass factor used when ``inplane_inertia = false`` (see the module docstring). Not
+#: smaller: stepnf's coupling floor (``tol.coupling`` times the lumped ``M^-1`` norm of
+#: ``G(phi_p, phi_p)``) grows like ``factor^-1/2`` through the in-plane rows and, at 1e-6, hides
+#: the 1:2 resonance flags of (2,1) (kappa = 10, 25) and (4,0) (kappa = 25); not larger: the
+#: error ``4 w_p^2 / w_s^2`` grows like the factor (1e-2: 8e-4 on Gamma of (2,0) at kappa = 25).
+INPLANE_MASS_FACTOR = 1e-3
+
+
+def _create_disk_mesh(points: np.ndarray, cells: np.ndarray):
+    """A serial dolfinx mesh of ``triangle6`` cells (VTK order) with quadratic geometry."""
+    import ufl
+    from dolfinx import cpp, mesh as dmesh
+
+    perm = np.asarray(cpp.io.perm_vtk(dmesh.CellType.triangle, 6))
+    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.triangle, 2))
+    return dmesh.create_mesh(_compat.comm_self(), np.ascontiguousarray(cells[:, perm], dtype=np.int64),
+                             np.ascontiguousarray(points, dtype=float), domain)
+
+
+def _lattice(order: int) -> np.ndarray:
+    """Points ``(s, t)`` of the reference triangle on a lattice of the given order."""
+    i, j = np.meshgrid(np.arange(order + 1), np.arange(order + 1), indexing="ij")
+    keep = i + j <= order
+    return np.column_stack([i[keep], j[keep]]) / order
+
+
+class ShallowShellAdapter(SolverAdapter):
+    """Free-edge Marguerre shallow shell (flat plate for ``R = inf``) with FEniCSx.
+
+    Parameters
+    ----------
+    a, R, h : projected outer radius, radius of curvature (``inf``: plate), thickness
+    E, nu, rho : Young's modulus, Poisson ratio, density
+    n_rings, grading : mesh resolution (:func:`stepnf_fenicsx.shallow_shell_mesh.disk_triangle6`);
+        12 rings (11 991 dofs with P3): frequencies of the first 24 modes within 3e-5 of the
+        von Karman model, Gamma of the six test modes within 0.02% (0.13% for (0,2))
+    inplane_inertia : keep the in-plane kinetic energy (False: von Karman's quasi-static in-plane motion)
+    penalty : interior-penalty factor alpha (penalty ``alpha D / h_F`` on the slope jumps, h_F the
+        mean diameter of the two cells); see :mod:`stepnf_fenicsx.shallow_shell_forms` for the choice 10
+    degree : polynomial degree of ``u, v, w`` (3: P3, frequency errors O(h^4); 2: P2, O(h^2):
+        at 5 403 dofs, (4,0) is 7e-3 off with P2 and 3e-5 with P3)
+    quadrature_degree : of the cell integrals (default ``2 degree``: exact mass and linear stiffness
+        on straight cells; f stays an exact cubic of the dofs whatever the rule)
+
+    Mode shapes, dofs and forces are in the units of the arguments (SI in the examples).
+    """
+
+    name = "fenicsx_shell"
+    provides_intrusive_tensors = True
+
+    def __init__(self, a: float, R: float, h: float, *, E: float, nu: float, rho: float,
+                 n_rings: int = DEFAULTS["n_rings"], grading: float = DEFAULTS["grading"],
+                 inplane_inertia: bool = DEFAULTS["inplane_inertia"], penalty: float = DEFAULTS["penalty"],
+                 degree: int = DEFAULTS["degree"], quadrature_degree: int | None = None):
+        from dolfinx import fem
+
+        from .shallow_shell_forms import MarguerreForms
+
+        t0 = time.perf_counter()
+        self.geometry = {"a": float(a), "R": float(R), "h": float(h)}
+        self.material = {"E": float(E), "nu": float(nu), "rho": float(rho)}
+        self.n_rings, self.grading = int(n_rings), float(grading)
+        self.inplane_inertia = bool(inplane_inertia)
+        self.penalty = float(penalty)
+        self.degree = int(degree)
+        if self.degree not in (2, 3):
+            raise ValueError(f"degree must be 2 or 3, got {degree}")
+        self.quadrature_degree = 2 * self.degree if quadrature_degree is None else int(quadrature_degree)
+        if not (math.isinf(R) or R >= a):
+            raise ValueError(f"radius of curvature must be >= a = {a} or inf, got {R}")
+        points, cells = disk_triangle6(float(a), self.n_rings, self.grading)
+        self.n_cells = len(cells)
+        msh = _create_disk_mesh(points, cells)
+        self._V = fem.VectorFunctionSpace(msh, ("Lagrange", int(degree)), dim=3)
+        xyz, bs = _compat.dof_layout(self._V)
+        assert bs == 3
+        self._nodes = xyz[:, :2].copy()
+        self._forms = MarguerreForms(self._V, E=E, nu=nu, rho=rho, h=h, R=R, alpha=self.penalty,
+                                     inplane_mass=1.0 if self.inplane_inertia else INPLANE_MASS_FACTOR,
+                                     quadrature_degree=self.quadrature_degree)
+        self._n = 3 * len(self._nodes)
+        self._K: sp.csr_matrix | None = None
+        self._M: sp.csr_matrix | None = None
+        self._labeler: ModeLabeler | None = None
+        self._samplers = None
+        self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path | None = None,
+                    scene_file: Path | None = None) -> "ShallowShellAdapter":
+        p = parse_shell_model(config, scene_file)
+        try:
+            return cls(p.pop("a"), p.pop("R"), p.pop("h"), **p)
+        except ValueError as exc:
+            raise SceneError(scene_file, "model.geometry", str(exc)) from exc
+
+    # ------------------------------------------------------------ required API
+    @property
+    def n_dofs(self) -> int:
+        return self._n
+
+    def mass_matrix(self) -> sp.csr_matrix:
+        if self._M is None:
+            t0 = time.perf_counter()
+            self._M = self._forms.mass()
+            self.timings["mass"] = time.perf_counter() - t0
+        return self._M
+
+    def stiffness_matrix(self) -> sp.csr_matrix:
+        if self._K is None:
+            t0 = time.perf_counter()
+            self._K = self._forms.stiffness()
+            self.timings["stiffness"] = time.perf_counter() - t0
+        return self._K
+
+    def _internal_force(self, u: np.ndarray) -> np.ndarray:
+        return self._forms.internal_force(u)
+
+    def quadratic_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return self._forms.quadratic(self._check_field(u), self._check_field(v))
+
+    def cubic_force(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        return self._forms.cubic(self._check_field(u), self._check_field(v), self._check_field(w))
+
+    # ------------------------------------------------------------ geometry
+    def _z0(self) -> np.ndarray:
+        R = self.geometry["R"]
+        r2 = np.sum(self._nodes**2, axis=1)
+        return np.zeros(len(r2)) if math.isinf(R) else -r2 / (2.0 * R)
+
+    def dof_coordinates(self) -> np.ndarray:
+        X = np.column_stack([self._nodes, self._z0()])
+        return np.repeat(X, 3, axis=0)
+
+    def dof_directions(self) -> np.ndarray:
+        return np.tile(np.arange(3), len(self._nodes))
+
+    def characteristic_length(self) -> float:
+        return self.geometry["h"]
+
+    def shell_scales(self):
+        from stepnf.shell import ShellScales
+
+        g, m = self.geometry, self.material
+        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])
+
+    def transverse_amplitude(self, phi: np.ndarray) -> float:
+        """max |w| of the finite-element deflection of the mode (not only at nodes).
+
+        Sampled on a lattice of order 8 in every cell, then of order 64 in the
+        eight cells with the largest samples: the maximum of a smooth mode is
+        found to ~1e-5 relative (a node-only maximum of a ``(k, 0)`` mode of
+        arbitrary orientation would err by up to ``(k dtheta / 2)^2``).
+        """
+        if self._samplers is None:
+            self._samplers = (self._forms.w_sampler(_lattice(8)), self._forms.w_sampler(_lattice(64)))
+        coarse, fine = self._samplers
+        u = self._check_field(phi)
+        vals = np.abs(coarse(u))
+        best = np.argsort(vals.max(axis=1))[-8:]
+        return float(max(vals.max(), np.abs(fine(u, best)).max()))
+
+    def mode_labels(self, Phi: np.ndarray) -> list[Any]:
+        """(k, n) from the transverse deflection ``w`` (:class:`stepnf.geometry.labels.ModeLabeler`,
+        normal ``e_z``: ``(u, v)`` is the tangential part); ``"in-plane"`` for in-plane modes."""
+        Phi = np.asarray(Phi, dtype=float)
+        if self._labeler is None:
+            N = len(self._nodes)
+            normals = np.tile([0.0, 0.0, 1.0], (N, 1))
+            self._labeler = ModeLabeler(self._nodes, np.arange(N), normals, self.geometry["a"])
+        return [self._labeler.label(Phi[:, j].reshape(-1, 3)) for j in range(Phi.shape[1])]
+
+    def describe(self) -> dict[str, Any]:
+        d = super().describe()
+        d.update({
+            "model": "Marguerre shallow shell (von Karman), C0 interior-penalty bending",
+            "cell_type": "triangle6", "n_cells": self.n_cells, "degree": self.degree,
+            "n_rings": self.n_rings, "grading": self.grading, "penalty": self.penalty,
+            "quadrature_degree": self.quadrature_degree, "inplane_inertia": self.inplane_inertia,
+            "inplane_mass_factor": 1.0 if self.inplane_inertia else INPLANE_MASS_FACTOR,
+            "material": dict(self.material),
+            "geometry": {k: (str(v) if math.isinf(v) else v) for k, v in self.geometry.items()},
+        })
+        return d
