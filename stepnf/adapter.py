@@ -62,6 +62,9 @@ class SolverAdapter:
     #: The solver gives the tangent stiffness at a prescribed field (:meth:`tangent_stiffness`),
     #: more precisely than its printed forces: STEP can use it (``[analysis.step] method = "tangent"``).
     provides_tangent_stiffness: ClassVar[bool] = False
+    #: Every MPI rank runs the pipeline together (the adapter gathers its results to all ranks):
+    #: calls must happen on every rank in the same order, so no force checkpoint is reused.
+    collective: ClassVar[bool] = False
     #: STEP amplitude (fraction of the characteristic length) this solver works best with, when the
     #: scene gives none; e.g. larger for a solver that prints few digits. ``None``: stepnf's default.
     step_relative_amplitude: ClassVar[float | None] = None

@@ -79,8 +79,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _mpi_size() -> int:
+    """Number of ranks started by ``mpirun``/``srun`` (1 otherwise), from the launcher's environment."""
+    import os
+
+    for key in ("OMPI_COMM_WORLD_SIZE", "PMIX_SIZE", "PMI_SIZE"):
+        value = os.environ.get(key, "")
+        if value.isdigit():
+            return int(value)
+    return 1
+
+
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from .sweep import load_sweep, run_sweep
+
+    if _mpi_size() > 1:
+        raise StepnfError("`stepnf sweep` must not run under mpirun: its store has one writer. Run it once and "
+                          "let each case use MPI through the solver, or give it a Dask scheduler (docs/cluster.md)")
 
     sweep = load_sweep(args.file)
     say = (lambda s: None) if args.quiet else (lambda s: print(f"[stepnf] {s}", file=sys.stderr, flush=True))

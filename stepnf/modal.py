@@ -151,7 +151,7 @@ def modal_analysis(
     small enough for a dense solve) and, when ``min_omega`` is given, keeps
     going until the highest computed frequency exceeds it (up to
     ``max_modes``); ``enough(basis)`` may ask for more modes still (e.g.
-    until a labelled master mode is found). ``eigensolver(k, shift)`` is the
+    until a labelled master mode is found). ``eigensolver(k, shift=...)`` is the
     adapter's own solver. ``rigid_candidates`` (n, 6), e.g. from
     :func:`rigid_body_fields`, lets the sparse path find the rigid-body modes
     without Lanczos and project them out from the start.
@@ -185,7 +185,7 @@ def modal_analysis(
         if progress:
             progress(f"eigen-solve: {k} modes of a {n}-dof model")
         if eigensolver is not None:
-            lam, vec = eigensolver(k, 0.0)
+            lam, vec = eigensolver(k, shift=0.0)
             basis = _split(np.asarray(lam, dtype=float), vec, M, scale, rigid_tolerance, rigid_modes,
                            degeneracy_tolerance, False, "adapter")
         else:
@@ -317,3 +317,49 @@ def modes_near(K: sp.spmatrix, M: sp.spmatrix, sigma: float, solve: Callable[[np
     order = np.argsort(lam)
     lam, vec = lam[order], vec[:, order]
     return np.sqrt(np.maximum(lam, 0.0)), _normalise(vec, M)
+
+
+def probe_vector(X: np.ndarray | None, D: np.ndarray | None, n: int) -> np.ndarray:
+    """A fixed pseudo-random field, a function of each dof's position and direction only.
+
+    It does not depend on the dof ordering, so two solvers (or a serial and an
+    MPI run, whose orderings differ) that compute the same degenerate
+    eigenspace orient it the same way (:func:`orient_degenerate`).
+    """
+    if X is None or D is None:
+        return np.random.default_rng(20201).standard_normal(n)
+    X = np.asarray(X, dtype=float)
+    scale = max(float(np.ptp(X)), 1e-300)
+    t = X / scale @ np.array([12.9898, 78.233, 37.719]) + 4.1 * np.asarray(D, dtype=float)
+    return np.sin(t) * 43758.5453 % 1.0 - 0.5
+
+
+def orient_degenerate(basis: ModalBasis, M: sp.spmatrix, probe: np.ndarray, exact: float = 1e-8) -> ModalBasis:
+    """Fix the basis of every degenerate group (in place): any rotation within a group is an
+    eigenbasis, and the solver's pick is arbitrary; T of a mode of the group depends on it when the
+    model is not exactly axisymmetric. The first mode of the group becomes the M-projection of
+    ``probe`` on the group, the others the rest in an order and orientation fixed the same way.
+    Only groups equal to ``exact`` (relative) are turned: a pair split by the mesh (a few 1e-4)
+    has eigenvectors of its own, which a rotation would spoil.
+    """
+    for group in basis.degenerate_groups:
+        w = basis.omega[group]
+        if w.max() - w.min() > exact * w.max():
+            continue
+        V = basis.phi[:, group]
+        c = V.T @ (M @ probe)  # coordinates of the probe in the group
+        if not np.linalg.norm(c) > 0:
+            continue
+        # an orthonormal basis of R^d whose first vector is c/|c| (Householder), orientation fixed
+        d = len(group)
+        e1 = np.zeros(d)
+        e1[0] = 1.0
+        u = c / np.linalg.norm(c)
+        w = u - e1
+        Q = np.eye(d) if np.linalg.norm(w) < 1e-14 else np.eye(d) - 2.0 * np.outer(w, w) / (w @ w)
+        W = V @ Q  # first column along the probe, the others orthogonal to it
+        for j in range(1, d):  # orient the others by the probe's second-order content
+            if float(W[:, j] @ (M @ (probe * probe))) < 0:
+                W[:, j] = -W[:, j]
+        basis.phi[:, group] = W
+    return basis

@@ -25,7 +25,8 @@ from .errors import SceneError
 from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
 from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
-from .modal import ModalBasis, modal_analysis, rigid_body_fields
+from .modal import (ModalBasis, lambda_scale, modal_analysis, orient_degenerate, probe_vector,
+                    rigid_body_fields)
 from .modal_model import ModalModel
 from .plan import resolve_masters, resolve_methods
 from .progress import Progress
@@ -85,7 +86,7 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
             adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
         # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
         # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
-        if write and scene.write_hdf5 and not getattr(adapter, "collective", False):
+        if write and scene.write_hdf5 and not adapter.collective:
             checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
         try:
             result = _run_adapter(scene, adapter, progress, checkpoint)
@@ -206,6 +207,8 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                                rigid_modes=scene.rigid_modes, degeneracy_tolerance=scene.degeneracy_tolerance,
                                max_modes=scene.max_modes, backend=backend, eigensolver=eig, enough=enough,
                                rigid_candidates=cands, progress=progress.message)
+    orient_degenerate(basis, M, probe_vector(X, dirs, n))  # the same twins whatever the solver
+    label_cache.clear()
     labels = labels_of(basis)
     masters = resolve_masters(scene, labels, basis.n_elastic, complete=True)
     assert masters is not None
@@ -256,11 +259,18 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         nonlocal ctx
         if ctx is None:
             deflated = None
+            precond = None
             if basis.factorization is not None and shift_solver is None and scene.deflation:
                 # every shifted solve below the computed spectrum reuses the eigen-solver's factors
                 F0 = basis.factorization
-                deflated = DeflatedSolver(K, M, Phi, omega**2, basis.rigid, lambda b: F0.solve(b, count=False),
-                                          counters)
+                precond = lambda b: F0.solve(b, count=False)  # noqa: E731
+            elif shift_solver is not None and scene.deflation and basis.n_elastic and not basis.complete:
+                # the same with ONE factorisation by the solver (e.g. distributed, under MPI), which then
+                # serves every solve below the computed spectrum, bordered modal-derivative systems included
+                counters.factorizations += 1
+                precond = shift_solver(-1e-10 * lambda_scale(K, M))
+            if precond is not None:
+                deflated = DeflatedSolver(K, M, Phi, omega**2, basis.rigid, precond, counters)
                 Kp = _DeflatedPinv(deflated, basis.rigid)
             else:
                 Kp = PseudoInverse(K, M, basis.rigid, counters=counters, backend=backend,

@@ -95,3 +95,32 @@ def test_rigid_modes_count_override():
     # a tolerance too tight to see the rigid modes: the count given by the scene still sets them apart
     basis = modal_analysis(sp.csr_matrix(K), sp.csr_matrix(M), rigid_tolerance=0.0, rigid_modes=2)
     assert basis.rigid.shape[1] == 2 and basis.omega[0] > 0.5
+
+
+def test_degenerate_pairs_get_a_solver_independent_orientation():
+    """Two different bases of the same degenerate eigenspace come out identical once oriented."""
+    from stepnf.modal import ModalBasis, orient_degenerate, probe_vector
+
+    rng = np.random.default_rng(5)
+    n = 12
+    M = sp.diags(rng.uniform(1, 2, n)).tocsr()
+    L = np.sqrt(M.diagonal())
+    Q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    V = Q / L[:, None]  # M-orthonormal
+    omega = np.array([1.0, 2.0, 2.0, 3.0])
+    X = rng.uniform(size=(n, 3))
+    D = np.tile([0, 1, 2], n // 3)
+    probe = probe_vector(X, D, n)
+    c, s = np.cos(0.7), np.sin(0.7)
+    bases = []
+    for R2 in (np.eye(2), np.array([[c, -s], [s, c]]), np.array([[0.0, 1.0], [1.0, 0.0]])):
+        phi = V[:, :4].copy()
+        phi[:, 1:3] = phi[:, 1:3] @ R2
+        b = ModalBasis(omega=omega.copy(), phi=phi, rigid=np.zeros((n, 0)), rigid_eigenvalues=np.zeros(0),
+                       degenerate_groups=[[1, 2]])
+        bases.append(orient_degenerate(b, M, probe).phi)
+    for other in bases[1:]:
+        assert np.allclose(other, bases[0], atol=1e-13)
+    # the probe depends on positions, not on the dof order
+    perm = rng.permutation(n)
+    assert np.allclose(probe_vector(X[perm], D[perm], n), probe[perm])

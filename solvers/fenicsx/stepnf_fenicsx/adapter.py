@@ -13,6 +13,7 @@ repeated); ``dof_coordinates`` gives each dof's node. No boundary conditions
 from __future__ import annotations
 
 import math
+import os
 import time
 from pathlib import Path
 from typing import Any, Mapping
@@ -91,8 +92,12 @@ class FenicsxAdapter(SolverAdapter):
     # ------------------------------------------------------------ construction
     @classmethod
     def _class_for_world(cls) -> type["FenicsxAdapter"]:
-        """This class, or :class:`~stepnf_fenicsx.parallel.DistributedFenicsxAdapter` under ``mpirun -n N>1``."""
-        if cls is FenicsxAdapter and _compat.world_size() > 1:
+        """This class, or :class:`~stepnf_fenicsx.parallel.DistributedFenicsxAdapter` under ``mpirun -n N>1``.
+
+        ``STEPNF_FENICSX_SERIAL=1`` keeps one serial model per process even
+        under MPI (e.g. Dask workers started by ``dask-mpi``).
+        """
+        if cls is FenicsxAdapter and not os.environ.get("STEPNF_FENICSX_SERIAL") and _compat.world_size() > 1:
             from .parallel import DistributedFenicsxAdapter
 
             return DistributedFenicsxAdapter

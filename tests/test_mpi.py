@@ -1,0 +1,195 @@
+"""The FEniCSx adapter under ``mpirun -n 2`` gives the serial run's results (issue 6, item 3).
+
+One small cap scene is run in-process (serial: Lanczos with a serial MUMPS
+factorisation in the core) and as ``mpirun -n 2 python -m stepnf run``
+(distributed mesh and assembly, SLEPc eigen-solve and parallel MUMPS shifted
+solves inside the adapter); the frequencies, labels and T of every method
+must agree. Then cheaper in-process checks of the distributed adapter on
+one process, where its dof order is the serial one.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sla
+
+pytest.importorskip("dolfinx")
+pytest.importorskip("slepc4py")
+
+from stepnf.linalg import isostatic_dofs  # noqa: E402
+from stepnf.modal import lambda_scale  # noqa: E402
+from stepnf.pipeline import run_scene  # noqa: E402
+from stepnf.scene import load_scene  # noqa: E402
+from stepnf.testing import Tolerances, parametrize_with_checks  # noqa: E402
+from stepnf_fenicsx import FenicsxAdapter  # noqa: E402
+from stepnf_fenicsx.parallel import DistributedFenicsxAdapter  # noqa: E402
+
+pytestmark = pytest.mark.fenicsx
+
+MPIRUN = shutil.which("mpirun") or shutil.which("mpiexec")
+
+# kappa = a^4 / (R h)^2 = 25, coarse O-grid (4113 dofs). Master modes (3,0), an exactly degenerate pair
+# (the pipeline orients such pairs by a probe field that depends on positions only, so both runs pick the
+# same companion: measured 2e-9), and (0,1), (0,2), axisymmetric. The split twins (2,0) (relative gap 1e-4,
+# a mesh artefact) are avoided on purpose: their mode shapes are ill-conditioned (a rotation of ~1e-6 within
+# the pair from round-off alone), so T of (2,0) differs by ~3e-8 between ANY two eigen-solvers, serial
+# included (measured: SLEPc vs ARPACK on the same matrices, one process).
+SCENE = """\
+[model]
+solver = "fenicsx"
+element = "hex27"
+[model.geometry]
+shape = "spherical_cap"
+a = 0.15
+R = 1.5
+h = 0.003
+n_core = 6
+n_ring = 3
+[model.material]
+E = 1.04e11
+nu = 0.3
+rho = 4400.0
+[analysis]
+master_modes = ["(3,0)", "(0,1)", "(0,2)"]
+methods = ["dnf", "md", "smd"]
+[output]
+dir = "out"
+plot = false
+"""
+
+
+def _mpirun_command(n: int) -> tuple[list[str], dict[str, str]]:
+    """``mpirun -n n`` (Open MPI: oversubscription allowed, and allowed as root, e.g. in containers)."""
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    cmd = [MPIRUN, "-n", str(n)]
+    version = subprocess.run([MPIRUN, "--version"], capture_output=True, text=True).stdout
+    if "Open MPI" in version or "OpenRTE" in version:
+        cmd.append("--oversubscribe")
+        env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    return cmd, env
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> tuple[dict, dict, Path]:
+    if MPIRUN is None:
+        pytest.skip("no mpirun on PATH")
+    folder = tmp_path_factory.mktemp("mpi")
+    scene_file = folder / "cap.toml"
+    scene_file.write_text(SCENE)
+    serial = json.loads(run_scene(load_scene(scene_file), write=False).to_json())
+    cmd, env = _mpirun_command(2)
+    out = folder / "parallel"
+    proc = subprocess.run(cmd + [sys.executable, "-m", "stepnf", "run", str(scene_file), "--json", "--quiet",
+                                 "-o", str(out)], capture_output=True, text=True, env=env, cwd=folder,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    parallel = json.loads(proc.stdout)  # one document: rank 1 prints nothing
+    return serial, parallel, out
+
+
+def test_the_parallel_run_is_distributed_and_written_once(runs):
+    serial, parallel, out = runs
+    assert parallel["model"]["mpi_processes"] == 2
+    assert parallel["model"]["adapter"] == "DistributedFenicsxAdapter"
+    assert parallel["spectrum"]["eigensolver"] == "adapter"  # SLEPc, not the core's Lanczos
+    assert sum(parallel["model"]["shifted_solvers"].values()) >= 1  # the adapter's solves were used
+    assert serial["model"]["adapter"] == "FenicsxAdapter"
+    assert serial["model"]["n_dofs"] == parallel["model"]["n_dofs"]
+    # rank 0 alone writes: one results file, no checkpoint folder left behind
+    assert sorted(p.name for p in out.iterdir()) == ["cap.h5"]
+
+
+def test_parallel_matches_serial(runs):
+    serial, parallel, _ = runs
+    assert parallel["spectrum"]["labels"][:14] == serial["spectrum"]["labels"][:14]
+    # frequencies: both eigen-solvers converge to round-off; measured 3e-11 relative
+    for ws, wp in zip(serial["spectrum"]["omega"][:14], parallel["spectrum"]["omega"][:14]):
+        assert wp == pytest.approx(ws, rel=1e-9)
+    assert [m["label"] for m in parallel["modes"]] == [m["label"] for m in serial["modes"]]
+    for ms, mp in zip(serial["modes"], parallel["modes"]):
+        assert set(mp["methods"]) == {"dnf", "md", "smd"} == set(ms["methods"])
+        for name in ms["methods"]:
+            Ts, Tp = ms["methods"][name]["T"], mp["methods"][name]["T"]
+            # the issue's requirement; measured <= 3.2e-10 (dof order, partition and solvers all differ:
+            # the serial run with SuperLU instead of MUMPS differs from itself by the same amount)
+            assert Tp == pytest.approx(Ts, rel=1e-8), (ms["label"], name)
+            assert mp["methods"][name]["gamma"] == pytest.approx(ms["methods"][name]["gamma"], rel=1e-8)
+
+
+# ---------------------------------------------------------------- the distributed adapter on one process
+# Cheap checks of the capabilities the parallel pipeline relies on, in-process (no mpirun needed): on one
+# process the distributed adapter's dof order is the serial one, so matrices and forces compare entrywise.
+COARSE = {"a": 0.15, "R": 0.5, "h": 0.003, "n_core": 2, "n_ring": 1}  # 513 dofs
+MAT = {"E": 1.04e11, "nu": 0.3, "rho": 4400.0}
+
+
+def _coarse(cls):
+    g = dict(COARSE)
+    return cls.cap(g.pop("a"), g.pop("R"), g.pop("h"), **MAT, **g)
+
+
+def _distributed() -> DistributedFenicsxAdapter:
+    return _coarse(DistributedFenicsxAdapter)
+
+
+@pytest.fixture(scope="module")
+def pair():
+    return _coarse(FenicsxAdapter), _distributed()
+
+
+# same tolerances as the serial adapter's conformance test (f is an exact cubic, round-off only)
+@parametrize_with_checks(_distributed, Tolerances())
+def test_distributed_conformance(check):
+    check()
+
+
+def test_one_process_matches_serial(pair):
+    s, d = pair
+    assert d.n_dofs == s.n_dofs and np.array_equal(d.dof_coordinates(), s.dof_coordinates())
+    K, M = s.stiffness_matrix(), s.mass_matrix()
+    # same forms, same cells, same order: identical up to summation order (round-off of |K|)
+    assert abs(d.stiffness_matrix() - K).max() <= 1e-13 * abs(K).max()
+    assert abs(d.mass_matrix() - M).max() <= 1e-13 * abs(M).max()
+    u = 0.003 * np.random.default_rng(3).standard_normal(s.n_dofs)
+    f = s.internal_force(u)
+    assert np.abs(d.internal_force(u) - f).max() <= 1e-12 * np.abs(f).max()
+
+
+def test_eigenmodes_and_shifted_solves(pair):
+    s, d = pair
+    K, M = s.stiffness_matrix().toarray(), s.mass_matrix().toarray()
+    lam, Phi = d.eigenmodes(16, 0.0)
+    ref = sla.eigh(K, M, eigvals_only=True)[:16]
+    # six rigid-body modes first, counted as rigid by the core's own criterion (stepnf.modal), then the
+    # elastic ones (the lowest at 3.7e-8 lambda_scale); dense LAPACK is accurate to ~eps lambda_max / lambda
+    # (~1e-9 here), shift-invert SLEPc better
+    assert np.all(np.abs(lam[:6]) <= 1e-11 * lambda_scale(K, M)) and lam[6] > 1e-9 * lambda_scale(K, M)
+    assert lam[6:] == pytest.approx(ref[6:], rel=1e-8)
+    assert np.abs(Phi.T @ M @ Phi - np.eye(16)).max() <= 1e-8  # M-orthonormal
+    # shifted solves, (K - sigma M) x = b on the free dofs and x = 0 on the fixed ones: by deflation + CG below
+    # the computed spectrum (K^+ with an isostatic support; a shift between two modes), by a new MUMPS
+    # factorisation above it
+    fixed = isostatic_dofs(Phi[:, :6])
+    cases = [(0.0, fixed, True), (0.5 * (lam[6] + lam[7]), None, True), (1.5 * lam[-1], None, False),
+             (0.5 * lam[6], fixed, False)]
+    rng = np.random.default_rng(5)
+    for sigma, fx, deflated in cases:
+        assert (d._deflated_solve(sigma, fx) is not None) == deflated
+        b = rng.standard_normal(d.n_dofs)
+        fx = np.zeros(0, dtype=int) if fx is None else fx
+        b[fx] = 0.0
+        x = d.shifted_solver(sigma, fixed_dofs=fx if len(fx) else None)(b)
+        free = np.setdiff1d(np.arange(d.n_dofs), fx)
+        A = (K - sigma * M)[np.ix_(free, free)]
+        assert np.all(x[fx] == 0.0)
+        # normwise backward error; CG stops at 1e-12 of |b| (<< |A| |x| here), MUMPS at round-off: measured
+        # 5e-17 .. 1.2e-16, a wrong reaction or rigid correction gives O(1e-3) and more
+        res = np.linalg.norm(A @ x[free] - b[free]) / (np.linalg.norm(A, 2) * np.linalg.norm(x))
+        assert res <= 1e-13, (sigma, res)
