@@ -21,11 +21,11 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.adapter import SolverAdapter
 from stepnf.errors import SceneError
 from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals, spherical_cap
 
 from . import _compat
+from ._forms_adapter import FormsAdapter
 from .config import parse_model
 from .model import Material, SvkForms
 
@@ -51,7 +51,7 @@ def read_mesh(path: str | Path) -> VolumeMesh:
     return VolumeMesh(points=pts, cells=renum[cells], cell_type=kinds[0], info={"file": str(path)})
 
 
-class FenicsxAdapter(SolverAdapter):
+class FenicsxAdapter(FormsAdapter):
     """St Venant-Kirchhoff 3D solid (Green-Lagrange strain, linear elastic stress) with FEniCSx.
 
     Parameters
@@ -135,34 +135,6 @@ class FenicsxAdapter(SolverAdapter):
             raise SceneError(scene_file, "model.mesh", f"cannot read {str(p['mesh'])!r}: {exc}") from exc
         return cls._class_for_world()(mesh, Material(**mat), geometry=p["geometry"],
                                       quadrature_degree=p["quadrature_degree"])
-
-    # ------------------------------------------------------------ required API
-    @property
-    def n_dofs(self) -> int:
-        return self._n
-
-    def mass_matrix(self) -> sp.csr_matrix:
-        if self._M is None:
-            t0 = time.perf_counter()
-            self._M = self._forms.mass()
-            self.timings["mass"] = time.perf_counter() - t0
-        return self._M
-
-    def stiffness_matrix(self) -> sp.csr_matrix:
-        if self._K is None:
-            t0 = time.perf_counter()
-            self._K = self._forms.stiffness()
-            self.timings["stiffness"] = time.perf_counter() - t0
-        return self._K
-
-    def _internal_force(self, u: np.ndarray) -> np.ndarray:
-        return self._forms.internal_force(u)
-
-    def quadratic_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return self._forms.quadratic(self._check_field(u), self._check_field(v))
-
-    def cubic_force(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return self._forms.cubic(self._check_field(u), self._check_field(v), self._check_field(w))
 
     # ------------------------------------------------------------ geometry
     def dof_coordinates(self) -> np.ndarray:

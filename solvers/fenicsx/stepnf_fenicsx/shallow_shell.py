@@ -43,11 +43,11 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.adapter import SolverAdapter
 from stepnf.errors import SceneError
 from stepnf.geometry.labels import ModeLabeler
 
 from . import _compat
+from ._forms_adapter import FormsAdapter
 from .shallow_shell_config import DEFAULTS, parse_shell_model
 from .shallow_shell_mesh import disk_triangle6
 
@@ -77,7 +77,7 @@ def _lattice(order: int) -> np.ndarray:
     return np.column_stack([i[keep], j[keep]]) / order
 
 
-class ShallowShellAdapter(SolverAdapter):
+class ShallowShellAdapter(FormsAdapter):
     """Free-edge Marguerre shallow shell (flat plate for ``R = inf``) with FEniCSx.
 
     Parameters
@@ -146,34 +146,6 @@ class ShallowShellAdapter(SolverAdapter):
             return cls(p.pop("a"), p.pop("R"), p.pop("h"), **p)
         except ValueError as exc:
             raise SceneError(scene_file, "model.geometry", str(exc)) from exc
-
-    # ------------------------------------------------------------ required API
-    @property
-    def n_dofs(self) -> int:
-        return self._n
-
-    def mass_matrix(self) -> sp.csr_matrix:
-        if self._M is None:
-            t0 = time.perf_counter()
-            self._M = self._forms.mass()
-            self.timings["mass"] = time.perf_counter() - t0
-        return self._M
-
-    def stiffness_matrix(self) -> sp.csr_matrix:
-        if self._K is None:
-            t0 = time.perf_counter()
-            self._K = self._forms.stiffness()
-            self.timings["stiffness"] = time.perf_counter() - t0
-        return self._K
-
-    def _internal_force(self, u: np.ndarray) -> np.ndarray:
-        return self._forms.internal_force(u)
-
-    def quadratic_force(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        return self._forms.quadratic(self._check_field(u), self._check_field(v))
-
-    def cubic_force(self, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return self._forms.cubic(self._check_field(u), self._check_field(v), self._check_field(w))
 
     # ------------------------------------------------------------ geometry
     def _z0(self) -> np.ndarray:

@@ -24,10 +24,11 @@ given, must be ``"spherical_cap"``); the resolution keys are this model's own.
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 from stepnf.errors import SceneError, allowed
+
+from .config import _number  # one number parser for both FEniCSx models
 
 MODEL_KEYS = ("geometry", "material", "inplane_inertia", "penalty", "degree", "quadrature_degree")
 GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_rings", "grading")
@@ -37,18 +38,6 @@ MATERIAL_KEYS = ("E", "nu", "rho")
 #: six test modes within 0.01% (0.13% for (0,2), 0.9% for (2,1) near a 1:2 resonance).
 DEFAULTS: dict[str, Any] = {"inplane_inertia": False, "penalty": 10.0, "degree": 3, "quadrature_degree": None,
                             "n_rings": 12, "grading": 1.0}
-
-
-def _number(value: Any, file, key: str, *, allow_inf: bool = False) -> float:
-    if isinstance(value, str) and allow_inf and value.strip().lower() in ("inf", "infinity"):
-        return math.inf
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        extra = ' or "inf"' if allow_inf else ""
-        raise SceneError(file, key, f"expected a number{extra}, got {value!r}")
-    value = float(value)
-    if math.isnan(value) or (math.isinf(value) and not allow_inf):
-        raise SceneError(file, key, f"expected a finite number, got {value!r}")
-    return value
 
 
 def _table(config: Mapping[str, Any], name: str, keys, file) -> dict[str, Any]:
