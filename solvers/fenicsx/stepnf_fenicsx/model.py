@@ -28,7 +28,48 @@ class Material:
         return lam, mu
 
 
-class SvkForms:
+class CubicForms:
+    """Compiled forms of an exact cubic internal force ``f(u)`` and their use.
+
+    A subclass builds ``f`` at ``self.u`` and at ``self.zero`` (a function that
+    stays 0) and calls :meth:`compile`: K, G and H are the first three
+    derivatives of f at 0 (G: the second derivative / 2, H: the third / 6),
+    so the intrusive tensors are exact.
+    """
+
+    def compile(self, f_u, f_z, du, mass) -> None:
+        import ufl
+
+        self.f_form = _compat.form(f_u)
+        self.K_form = _compat.form(ufl.derivative(f_z, self.zero, du))
+        self.M_form = _compat.form(mass)
+        d2 = ufl.derivative(ufl.derivative(f_z, self.zero, self.a), self.zero, self.b)
+        self.G_form = _compat.form(0.5 * d2)
+        self.H_form = _compat.form((1.0 / 6.0) * ufl.derivative(d2, self.zero, self.c))
+
+    def internal_force(self, u):
+        _compat.set_values(self.u, u)
+        return _compat.assemble_vector(self.f_form)
+
+    def quadratic(self, u, v):
+        _compat.set_values(self.a, u)
+        _compat.set_values(self.b, v)
+        return _compat.assemble_vector(self.G_form)
+
+    def cubic(self, u, v, w):
+        _compat.set_values(self.a, u)
+        _compat.set_values(self.b, v)
+        _compat.set_values(self.c, w)
+        return _compat.assemble_vector(self.H_form)
+
+    def stiffness(self):
+        return _compat.assemble_matrix(self.K_form)
+
+    def mass(self):
+        return _compat.assemble_matrix(self.M_form)
+
+
+class SvkForms(CubicForms):
     """Compiled forms of one mesh: internal force, tangent, mass and intrusive tensors.
 
     ``quadrature_degree`` fixes the quadrature (4: 3x3x3 Gauss points on
@@ -62,34 +103,4 @@ class SvkForms:
             S = lam * ufl.tr(E) * I + 2 * mu * E
             return ufl.inner(F * S, ufl.grad(v)) * dx
 
-        f_u = internal(self.u)
-        f_z = internal(self.zero)
-        self.f_form = _compat.form(f_u)
-        self.K_form = _compat.form(ufl.derivative(f_z, self.zero, du))
-        self.M_form = _compat.form(rho * ufl.inner(du, v) * dx)
-        d2 = ufl.derivative(ufl.derivative(f_z, self.zero, self.a), self.zero, self.b)
-        self.G_form = _compat.form(0.5 * d2)
-        d3 = ufl.derivative(ufl.derivative(ufl.derivative(f_z, self.zero, self.a), self.zero, self.b),
-                            self.zero, self.c)
-        self.H_form = _compat.form((1.0 / 6.0) * d3)
-
-    def internal_force(self, u):
-        _compat.set_values(self.u, u)
-        return _compat.assemble_vector(self.f_form)
-
-    def quadratic(self, u, v):
-        _compat.set_values(self.a, u)
-        _compat.set_values(self.b, v)
-        return _compat.assemble_vector(self.G_form)
-
-    def cubic(self, u, v, w):
-        _compat.set_values(self.a, u)
-        _compat.set_values(self.b, v)
-        _compat.set_values(self.c, w)
-        return _compat.assemble_vector(self.H_form)
-
-    def stiffness(self):
-        return _compat.assemble_matrix(self.K_form)
-
-    def mass(self):
-        return _compat.assemble_matrix(self.M_form)
+        self.compile(internal(self.u), internal(self.zero), du, rho * ufl.inner(du, v) * dx)

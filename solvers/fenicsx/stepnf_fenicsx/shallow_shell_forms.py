@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 
 from . import _compat
+from .model import CubicForms
 
 
 def cell_diameters(msh):
@@ -63,7 +64,7 @@ def cell_diameters(msh):
     return fn
 
 
-class MarguerreForms:
+class MarguerreForms(CubicForms):
     """Compiled forms on a dolfinx mesh of the plan view (see the module docstring).
 
     Parameters: ``V`` the blocked P2 space of dimension 3 on a 2D mesh; ``E, nu,
@@ -131,18 +132,10 @@ class MarguerreForms:
         def force(U):
             return ufl.derivative(energy(U), U, V_)
 
-        f_u = force(self.u)
-        f_z = force(self.zero)
-        self.f_form = _compat.form(f_u)
-        self.K_form = _compat.form(ufl.derivative(f_z, self.zero, dU))
         _, _, w_t = parts(V_)
         _, _, w_d = parts(dU)
         mass = rho_h * (w_d * w_t + c_in * (dU[0] * V_[0] + dU[1] * V_[1])) * dx
-        self.M_form = _compat.form(mass)
-        d2 = ufl.derivative(ufl.derivative(f_z, self.zero, self.a), self.zero, self.b)
-        self.G_form = _compat.form(0.5 * d2)
-        d3 = ufl.derivative(d2, self.zero, self.c)
-        self.H_form = _compat.form((1.0 / 6.0) * d3)
+        self.compile(force(self.u), force(self.zero), dU, mass)
 
     def w_sampler(self, X):
         """``fn(field) -> (cells, len(X))``: w of a field at reference points ``X`` (k, 2) of every cell."""
@@ -162,24 +155,3 @@ class MarguerreForms:
             _compat.set_values(self.sample, field)
             return np.asarray(expr.eval(cells if which is None else np.asarray(which, dtype=np.int32)))
         return fn
-
-    def internal_force(self, u):
-        _compat.set_values(self.u, u)
-        return _compat.assemble_vector(self.f_form)
-
-    def quadratic(self, u, v):
-        _compat.set_values(self.a, u)
-        _compat.set_values(self.b, v)
-        return _compat.assemble_vector(self.G_form)
-
-    def cubic(self, u, v, w):
-        _compat.set_values(self.a, u)
-        _compat.set_values(self.b, v)
-        _compat.set_values(self.c, w)
-        return _compat.assemble_vector(self.H_form)
-
-    def stiffness(self):
-        return _compat.assemble_matrix(self.K_form)
-
-    def mass(self):
-        return _compat.assemble_matrix(self.M_form)
