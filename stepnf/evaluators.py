@@ -223,7 +223,8 @@ def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
 def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
             twins: np.ndarray | None = None, *, g: np.ndarray | None = None,
             tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None,
-            exclude: Sequence[int] | None = None) -> MethodResult:
+            exclude: Sequence[int] | None = None, twin_index: Sequence[int] | None = None,
+            labels: Sequence[Any] | None = None) -> MethodResult:
     """Modal-derivative quadratic manifold, full order.
 
     ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
@@ -242,9 +243,13 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
         if floor is None:
             floor = tol.coupling * max(np.abs(g).max() if g is not None and g.size else abs(float(phi @ Gv)), 1e-300)
         if np.any(np.abs(gt) > (np.max(floor) if np.ndim(floor) else floor)):
-            flags.append({"kind": "internal_resonance_1_1", "mode": None,
-                          "message": f"MD: a degenerate twin of master mode {p} couples "
-                                     f"(|g| = {np.abs(gt).max():.3e}): modal derivative diverges"})
+            j = int(np.argmax(np.abs(gt)))
+            s_idx = None if twin_index is None else int(twin_index[j])
+            lab = None if s_idx is None or labels is None else labels[s_idx]
+            name = "a degenerate twin" if s_idx is None else f"mode {s_idx}" + ("" if lab is None else f" {lab}")
+            flags.append({"kind": "internal_resonance_1_1", "mode": s_idx, "label": lab, "ratio": 1.0,
+                          "message": f"MD: {name}, a degenerate twin of master mode {p}, couples "
+                                     f"(|g| = {np.abs(gt).max():.3e}): the modal derivative diverges"})
             return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
                                 flags, order="full")
     if ctx.deflated is not None and exclude is not None:

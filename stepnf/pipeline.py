@@ -19,8 +19,8 @@ from .backbone import MethodResult
 from .checkpoint import Checkpoint
 from .counters import Counters
 from .deflation import DeflatedSolver
-from .diagnostics import (coupling_floor, floor_scale, one_two_flags, slow_fast_ratio, t_error,
-                          truncation_flags)
+from .diagnostics import (conditioning_flags, coupling_floor, floor_scale, one_two_flags, slow_fast_ratio,
+                          t_error, truncation_flags)
 from .errors import SceneError
 from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
@@ -214,7 +214,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     assert masters is not None
     omega, Phi = basis.omega, basis.phi
     m = basis.n_elastic
-    run_flags: list[dict] = []
+    run_flags: list[dict] = conditioning_flags(basis, K, M)
     if needs_modal and m < n_ret:
         run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
                           f"{n_ret} asked for in the modal sums"})
@@ -325,23 +325,19 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                                               tol, adapter, counters)
                 elif ev == "smd_full":
                     r = smd_full(p, phi, omega[p], st.Gv, st.h, context(), y=y)
-                    if st.Gv_check is not None:  # STEP sensitivity through the modal proxy over computed modes
-                        S = np.arange(m)
-                        a = smd_modal(p, omega, g_all, st.h, S, tol=tol, floor=floor)
-                        b = smd_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol, floor=floor)
-                        r.T_error = t_error(a.T, b.T)
+                    if st.Gv_check is not None:  # T again at the check amplitude: one more K^+ solve
+                        r.T_error = t_error(r.T, smd_full(p, phi, omega[p], st.Gv_check, st.h_check, context()).T)
                 elif ev == "md_full":
                     tw = Phi[:, twins] if twins else None
                     nr = basis.rigid.shape[1]
-                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, g=g_all, tol=tol, floor=floor,
-                                exclude=[nr + p] + [nr + t for t in twins])
+                    kw = dict(g=g_all, tol=tol, floor=floor, exclude=[nr + p] + [nr + t for t in twins],
+                              twin_index=twins, labels=labels)
+                    r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, **kw)
                     r.flags += _resonance_flags("md", p, omega, g_all,
                                                 [s for s in range(m) if s not in twins], 1.0, tol, labels, floor)
-                    if st.Gv_check is not None and np.isfinite(r.T):
-                        S = np.array([s for s in range(m) if s not in twins])
-                        a = md_modal(p, omega, g_all, st.h, S, tol=tol, floor=floor)
-                        b = md_modal(p, omega, Phi.T @ st.Gv_check, st.h_check, S, tol=tol, floor=floor)
-                        r.T_error = t_error(a.T, b.T)
+                    if st.Gv_check is not None and np.isfinite(r.T):  # T again at the check amplitude
+                        r2 = md_full(p, phi, omega[p], st.Gv_check, st.h_check, context(), tw, **kw)
+                        r.T_error = t_error(r.T, r2.T)
                 else:  # pragma: no cover - resolve_methods only yields the above
                     raise KeyError(ev)
                 r.method = name

@@ -34,7 +34,12 @@ def read_mesh(path: str | Path) -> VolumeMesh:
     """Read the volume cells of any file meshio reads (one supported cell type)."""
     import meshio
 
-    m = meshio.read(str(path))
+    from stepnf.geometry.checks import duplicate_nodes, tangled_cells
+
+    try:
+        m = meshio.read(str(path))
+    except SystemExit as exc:  # meshio exits (!) on a file it cannot identify
+        raise ValueError(f"{path}: meshio cannot read this file (unknown or corrupt format)") from exc
     kinds = [c.type for c in m.cells if c.type in _compat.CELLS]
     if not kinds:
         raise ValueError(f"{path}: no volume cells dolfinx can use; found {[c.type for c in m.cells]}, "
@@ -48,7 +53,17 @@ def read_mesh(path: str | Path) -> VolumeMesh:
     pts = np.asarray(m.points, dtype=float)[used]
     if pts.shape[1] == 2:
         raise ValueError(f"{path}: a 2D mesh; the fenicsx adapter needs volume cells in 3D")
-    return VolumeMesh(points=pts, cells=renum[cells], cell_type=kinds[0], info={"file": str(path)})
+    cells = renum[cells]
+    dup = duplicate_nodes(pts)
+    if len(dup):
+        raise ValueError(f"{path}: {len(dup)} pairs of coincident nodes (e.g. nodes {dup[0, 0]} and {dup[0, 1]} at "
+                         f"{pts[dup[0, 0]].tolist()}): parts of the mesh are not connected; merge them")
+    if kinds[0] in ("hexahedron27", "hexahedron20"):
+        bad = tangled_cells(pts, cells, cells.shape[1])
+        if len(bad):
+            raise ValueError(f"{path}: {len(bad)} tangled (inverted) element(s), e.g. cell {bad[0]}: the "
+                             "Jacobian changes sign inside it")
+    return VolumeMesh(points=pts, cells=cells, cell_type=kinds[0], info={"file": str(path)})
 
 
 class FenicsxAdapter(FormsAdapter):
