@@ -155,32 +155,81 @@ def t_error(T: float, T2: float) -> float:
     return abs(T - T2) / abs(T) if T != 0 else (0.0 if T2 == 0 else float("inf"))
 
 
-def conditioning_flags(basis: ModalBasis, K: sp.spmatrix, M: sp.spmatrix, *, flag_at: float = 1e-6,
-                       refuse_at: float = 1e-2) -> list[dict]:
+def smooth_eigenvalue(K: sp.spmatrix, M: sp.spmatrix, X: np.ndarray | None, D: np.ndarray | None) -> float | None:
+    """An upper bound of the lowest elastic eigenvalue from smooth fields, without an eigen-solve.
+
+    Rayleigh-Ritz on the quadratic displacement fields ``u_d = x_e x_f``
+    (centred, scaled coordinates) with the rigid motions projected out: the
+    least Ritz value bounds the first bending eigenvalue from above (within a
+    small factor for plates and shells). ``None`` without dof geometry.
+    """
+    if X is None or D is None:
+        return None
+    from .modal import rigid_body_fields
+
+    X = np.asarray(X, dtype=float)
+    D = np.asarray(D, dtype=int)
+    c = (X - X.mean(axis=0)) / max(float(np.ptp(X)), 1e-300)
+    cols = []
+    for d in range(3):
+        on = (D == d).astype(float)
+        for e in range(3):
+            for f in range(e, 3):
+                cols.append(on * c[:, e] * c[:, f])
+    Q = np.column_stack(cols)
+    R = rigid_body_fields(X, D)
+    MR = M @ R
+    Q = Q - R @ np.linalg.lstsq(R.T @ MR, MR.T @ Q, rcond=None)[0]  # M-orthogonal to the rigid motions
+    q, r = np.linalg.qr(Q)
+    keep = np.abs(np.diag(r)) > 1e-10 * np.abs(np.diag(r)).max()
+    q = q[:, keep]
+    if not q.shape[1]:
+        return None
+    Kr, Mr = q.T @ (K @ q), q.T @ (M @ q)
+    lam = np.linalg.eigvalsh(np.linalg.solve(np.linalg.cholesky(Mr), np.linalg.solve(np.linalg.cholesky(Mr),
+                                                                                      Kr).T))
+    return float(max(lam.min(), 0.0))
+
+
+def conditioning_ratio(lam_low: float, K: sp.spmatrix, M: sp.spmatrix) -> float:
+    """``lambda_low / lambda_max``, ``lambda_max`` estimated by ``max(diag K / diag M)``."""
+    from .modal import lambda_scale
+
+    return float(lam_low / lambda_scale(K, M))
+
+
+def check_conditioning(r: float, *, flag_at: float = 1e-6, refuse_at: float = 1e-2) -> list[dict]:
     """Flag (or refuse) a model whose stiffness spread exceeds what double precision resolves.
 
     The lowest elastic eigenvalue is computed with an absolute error of about
     ``eps * lambda_max``, i.e. a relative error ``eps / r`` with
-    ``r = lambda_1 / lambda_max`` (``lambda_max`` estimated by ``max(diag K /
-    diag M)``). A 3D solid model of a shell has ``r ~ (h/a)^4``: fine at
-    h/a = 0.02 (r ~ 1e-8), hopeless at h/a = 1e-4 (r ~ 1e-17). Above
-    ``flag_at`` the results carry an ``ill_conditioned`` flag; above
-    ``refuse_at`` (the frequencies themselves are wrong by a percent or more)
-    the run stops with a :class:`NumericalError`.
+    ``r = lambda_1 / lambda_max``. A 3D solid model of a shell has
+    ``r ~ (h/a)^4``: fine at h/a = 0.02 (r ~ 1e-8), hopeless at h/a = 1e-4
+    (r ~ 1e-17). Above ``flag_at`` the results carry an ``ill_conditioned``
+    flag; above ``refuse_at`` (frequencies wrong by a percent or more) the run
+    stops with a :class:`NumericalError`.
     """
     from .errors import NumericalError
-    from .modal import lambda_scale
 
-    if not basis.n_elastic:
-        return []
-    r = float(basis.omega[0] ** 2 / lambda_scale(K, M))
     err = np.finfo(float).eps / max(r, 1e-300)
     text = (f"the lowest elastic eigenvalue is {r:.1e} times the largest: double precision resolves it only "
-            f"to about {err:.0e} (relative), and every frequency, mode and T inherits that error. A very thin "
-            "structure meshed with solid elements does this; use a shell model, or coarser in-plane and finer "
-            "through-thickness resolution")
+            f"to about {min(err, 1.0):.0e} (relative), and every frequency, mode and T inherits that error. A very "
+            "thin structure meshed with solid elements does this (stiffness ratio ~ (a/h)^4); use a shell "
+            "model, or fewer through-thickness elements")
     if err > refuse_at:
         raise NumericalError("ill-conditioned model: " + text)
     if err > flag_at:
-        return [{"kind": "ill_conditioned", "value": err, "message": text}]
+        return [{"kind": "ill_conditioned", "value": float(err), "message": text}]
     return []
+
+
+def conditioning_flags(basis: ModalBasis, K: sp.spmatrix, M: sp.spmatrix,
+                       smooth: float | None = None) -> list[dict]:
+    """:func:`check_conditioning` with the lowest computed eigenvalue (and the smooth-field bound, which
+    catches a first eigenvalue that round-off has pushed far too high)."""
+    if not basis.n_elastic:
+        return []
+    lam = float(basis.omega[0] ** 2)
+    if smooth is not None:
+        lam = min(lam, smooth)
+    return check_conditioning(conditioning_ratio(lam, K, M))

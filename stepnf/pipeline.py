@@ -19,7 +19,7 @@ from .backbone import MethodResult
 from .checkpoint import Checkpoint
 from .counters import Counters
 from .deflation import DeflatedSolver
-from .diagnostics import (conditioning_flags, coupling_floor, floor_scale, one_two_flags, slow_fast_ratio,
+from .diagnostics import (check_conditioning, conditioning_flags, conditioning_ratio, smooth_eigenvalue, coupling_floor, floor_scale, one_two_flags, slow_fast_ratio,
                           t_error, truncation_flags)
 from .errors import SceneError
 from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
@@ -202,6 +202,9 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     eig = adapter.eigenmodes if adapter.provides_eigenmodes else None
     X, dirs = adapter.dof_coordinates(), adapter.dof_directions()
     cands = rigid_body_fields(X, dirs) if X is not None and dirs is not None else None
+    smooth = smooth_eigenvalue(K, M, X, dirs)  # refuse a hopelessly ill-conditioned model before solving
+    if smooth is not None:
+        check_conditioning(conditioning_ratio(smooth, K, M))
     with progress.stage("eigen", "modal analysis"):
         basis = modal_analysis(K, M, need, counters=counters, rigid_tolerance=scene.rigid_tolerance,
                                rigid_modes=scene.rigid_modes, degeneracy_tolerance=scene.degeneracy_tolerance,
@@ -214,7 +217,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     assert masters is not None
     omega, Phi = basis.omega, basis.phi
     m = basis.n_elastic
-    run_flags: list[dict] = conditioning_flags(basis, K, M)
+    run_flags: list[dict] = conditioning_flags(basis, K, M, smooth)
     if needs_modal and m < n_ret:
         run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
                           f"{n_ret} asked for in the modal sums"})

@@ -46,10 +46,12 @@ def resolve_masters(scene: Scene, labels: Sequence[Any], n_modes: int, *, comple
         hits = [s for s, lab in enumerate(labels) if _label_matches(lab, want)]
         if not hits:
             if complete:
-                found = sorted({label_text(x) for x in labels if x is not None})
+                found = sorted({label_text(x) for x in labels if x is not None},
+                               key=lambda t: (len(t), t))
+                more = f" and {len(found) - 30} more" if len(found) > 30 else ""
                 raise SceneError(scene.file, f"analysis.master_modes[{i}]",
                                  f"no mode is labelled {m!r} among the {n_modes} modes computed; "
-                                 f"labels found: {found}")
+                                 f"labels found: {found[:30]}{more}")
             return None
         out.append(hits[0])
     if len(set(out)) != len(out):

@@ -158,8 +158,10 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
             raise SceneError(f, f"analysis.master_modes[{i}]", f"expected an integer or a label, got {m!r}")
         if isinstance(m, int) and m < 0:
             raise SceneError(f, f"analysis.master_modes[{i}]", f"mode indices start at 0, got {m}")
-        if isinstance(m, str) and parse_label(m) is None and not m.strip():
-            raise SceneError(f, f"analysis.master_modes[{i}]", "empty label")
+        if isinstance(m, str) and parse_label(m) is None and (not m.strip() or m.strip().startswith("(")):
+            raise SceneError(f, f"analysis.master_modes[{i}]",
+                             f"{m!r} is not a label: write (k, n) labels as \"(2,0)\" (k nodal diameters, "
+                             "n nodal circles), or give a 0-based mode index")
     if len(set(map(str, masters))) != len(masters):
         raise SceneError(f, "analysis.master_modes", f"repeated master modes in {masters}")
 

@@ -141,8 +141,13 @@ def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: fl
 
     Error estimates are relative to the size of the nonlinear forces at the
     STEP amplitude, so they stay meaningful when G vanishes by symmetry:
-    ``error_G = q ||dGv|| / ||K phi||`` and ``error_h = q^2 |dh| / (phi^T K phi)``,
-    where d is the difference between the two amplitudes.
+    ``error_G = q ||dGv|| / ||K phi||`` (the change of the quadratic force at
+    the STEP amplitude, relative to the linear force) and ``error_h`` the
+    larger of ``|dh| / |h|`` (round-off at small amplitudes; h does not vanish
+    by symmetry) and ``q^2 |dh| / (phi^T K phi)`` (the change of the cubic force
+    relative to the linear one, which grows with the amplitude for a force
+    that is not an exact cubic), where d is the difference between the two
+    amplitudes.
     """
     return targeted_steps(forces, K, phi[:, None], np.asarray([q]), policy, [p])[0]
 
@@ -178,7 +183,7 @@ def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: n
             w2 = max(float(phi @ Kphi), 1e-300)
             res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
             res.error_G = qj * float(np.linalg.norm(Gv - Gv2)) / lin
-            res.error_h = qj * qj * abs(h - h2) / w2
+            res.error_h = max(_relative(h, h2), qj * qj * abs(h - h2) / w2)
             for name, err in (("G", res.error_G), ("h", res.error_h)):
                 if not np.isfinite(err) or err > policy.tolerance:
                     res.flags.append({
@@ -223,9 +228,15 @@ def targeted_steps_tangent(tangent: Callable[[np.ndarray], sp.spmatrix], K: sp.s
             Kphi = K @ phi
             res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
             res.error_G = qj * float(np.linalg.norm(Gv - Gv2)) / max(float(np.linalg.norm(Kphi)), 1e-300)
-            res.error_h = qj * qj * abs(h - h2) / max(float(phi @ Kphi), 1e-300)
+            res.error_h = max(_relative(h, h2), qj * qj * abs(h - h2) / max(float(phi @ Kphi), 1e-300))
         out.append(res)
     return out
+
+
+def _relative(x: float, y: float) -> float:
+    """``|x - y| / |x|`` (0 when both vanish)."""
+    d = abs(x - y)
+    return d / abs(x) if x != 0 else (0.0 if d == 0 else float("inf"))
 
 
 def n_full_step_evaluations(n: int) -> int:
