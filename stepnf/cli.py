@@ -31,18 +31,20 @@ def _cmd_solvers(args: argparse.Namespace) -> int:
     return 0
 
 
-def _mpi_rank() -> int:
-    """This process's rank when started by ``mpirun``/``srun`` (0 otherwise), from the launcher's environment.
-
-    Read from the environment so that stepnf never imports MPI itself.
-    """
+def _launcher(keys: tuple[str, ...], default: int) -> int:
+    """An integer the MPI launcher (``mpirun``/``srun``) put in the environment: stepnf never imports MPI."""
     import os
 
-    for key in ("OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK"):
+    for key in keys:
         value = os.environ.get(key, "")
         if value.isdigit():
             return int(value)
-    return 0
+    return default
+
+
+def _mpi_rank() -> int:
+    """This process's rank when started by ``mpirun``/``srun`` (0 otherwise)."""
+    return _launcher(("OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK"), 0)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -80,14 +82,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _mpi_size() -> int:
-    """Number of ranks started by ``mpirun``/``srun`` (1 otherwise), from the launcher's environment."""
-    import os
-
-    for key in ("OMPI_COMM_WORLD_SIZE", "PMIX_SIZE", "PMI_SIZE"):
-        value = os.environ.get(key, "")
-        if value.isdigit():
-            return int(value)
-    return 1
+    """Number of ranks started by ``mpirun``/``srun`` (1 otherwise)."""
+    return _launcher(("OMPI_COMM_WORLD_SIZE", "PMIX_SIZE", "PMI_SIZE"), 1)
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:

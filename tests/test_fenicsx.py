@@ -148,7 +148,7 @@ def _with(path: str, value):
     ("geometry.n_core", 0, "model.geometry.n_core"),
     ("geometry.colour", 1, "model.geometry"),
     ("material.nu", 0.5, "model.material.nu"),
-    ("material.E", None, "model.material"),
+    ("material.E", None, "model.material.E"),  # the missing key itself
     ("material.rho", -1.0, "model.material.rho"),
     ("mesh", "missing.msh", "model.mesh"),
     ("quadrature_degree", 1, "model.quadrature_degree"),

@@ -37,7 +37,7 @@ def positive_number(table: Mapping[str, Any], where: str, key: str, scene_file, 
 
 
 def material(config: Mapping[str, Any], scene_file, *, required: bool = True) -> dict[str, float]:
-    """``[model.material]``: E > 0, 0 <= nu < 0.5, rho > 0 (all three when ``required``)."""
+    """``[model.material]``: E > 0, -1 < nu < 0.5, rho > 0 (all three when ``required``)."""
     mat = config.get("material", {})
     if not isinstance(mat, Mapping):
         raise SceneError(scene_file, "model.material", "expected a table with E, nu, rho")
@@ -53,8 +53,8 @@ def material(config: Mapping[str, Any], scene_file, *, required: bool = True) ->
             continue
         if k == "nu":
             v = mat[k]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < 0.5:
-                raise SceneError(scene_file, "model.material.nu", f"expected 0 <= nu < 0.5, got {v!r}")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not -1 < v < 0.5:
+                raise SceneError(scene_file, "model.material.nu", f"Poisson's ratio must lie in (-1, 0.5), got {v!r}")
             out[k] = float(v)
         else:
             out[k] = positive_number(mat, "model.material", k, scene_file)

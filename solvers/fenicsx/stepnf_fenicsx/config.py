@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from stepnf.errors import SceneError, allowed
+from stepnf.geometry import keys as cap_keys
 
 ELEMENTS = ("hex27", "tet10")
 SHAPES = ("spherical_cap",)
@@ -80,19 +81,10 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
     if isinstance(qd, bool) or not isinstance(qd, int) or not 2 <= qd <= 12:
         raise SceneError(f, "model.quadrature_degree", f"expected an integer in [2, 12], got {qd!r}")
 
-    mat = _table(config, "material", MATERIAL_KEYS, f)
-    missing = [k for k in MATERIAL_KEYS if k not in mat]
-    if missing:
-        raise SceneError(f, "model.material", f"missing keys {missing}; a material needs {allowed(MATERIAL_KEYS)}")
-    E = _number(mat["E"], f, "model.material.E")
-    nu = _number(mat["nu"], f, "model.material.nu")
-    rho = _number(mat["rho"], f, "model.material.rho")
-    if E <= 0:
-        raise SceneError(f, "model.material.E", f"Young's modulus must be > 0, got {E}")
-    if not -1.0 < nu < 0.5:
-        raise SceneError(f, "model.material.nu", f"Poisson's ratio must lie in (-1, 0.5), got {nu}")
-    if rho <= 0:
-        raise SceneError(f, "model.material.rho", f"density must be > 0, got {rho}")
+    if "material" not in config:
+        raise SceneError(f, "model.material", f"missing table; a material needs {allowed(MATERIAL_KEYS)}")
+    mat = cap_keys.material(config, f)  # the keys every cap adapter shares
+    E, nu, rho = mat["E"], mat["nu"], mat["rho"]
 
     geo = _table(config, "geometry", GEOMETRY_KEYS, f)
     mesh = config.get("mesh")

@@ -27,6 +27,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from stepnf.errors import SceneError, allowed
+from stepnf.geometry import keys as cap_keys
 
 from .config import _number  # one number parser for both FEniCSx models
 
@@ -78,19 +79,10 @@ def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, A
         raise SceneError(f, "model.quadrature_degree", f"expected an integer in [2, 12], got {qd!r}")
     out["quadrature_degree"] = qd
 
-    mat = _table(config, "material", MATERIAL_KEYS, f)
-    missing = [k for k in MATERIAL_KEYS if k not in mat]
-    if missing:
-        raise SceneError(f, "model.material", f"missing keys {missing}; a material needs {allowed(MATERIAL_KEYS)}")
-    E = _number(mat["E"], f, "model.material.E")
-    nu = _number(mat["nu"], f, "model.material.nu")
-    rho = _number(mat["rho"], f, "model.material.rho")
-    if E <= 0:
-        raise SceneError(f, "model.material.E", f"Young's modulus must be > 0, got {E}")
-    if not -1.0 < nu < 0.5:
-        raise SceneError(f, "model.material.nu", f"Poisson's ratio must lie in (-1, 0.5), got {nu}")
-    if rho <= 0:
-        raise SceneError(f, "model.material.rho", f"density must be > 0, got {rho}")
+    if "material" not in config:
+        raise SceneError(f, "model.material", f"missing table; a material needs {allowed(MATERIAL_KEYS)}")
+    mat = cap_keys.material(config, f)  # the keys every cap adapter shares
+    E, nu, rho = mat["E"], mat["nu"], mat["rho"]
     out.update(E=E, nu=nu, rho=rho)
 
     geo = _table(config, "geometry", GEOMETRY_KEYS, f)
