@@ -32,6 +32,17 @@ class CapSolid:
     _sampler: tuple | None = None
     _labeler: ModeLabeler | None = None
 
+    @classmethod
+    def from_cap(cls, *, a: float, R: float, h: float, E: float, nu: float, rho: float,
+                 resolution: dict | None = None, **kw: Any):
+        """A free-edge spherical cap (``R = inf``: flat plate) meshed with 20-node bricks
+        (:func:`stepnf.geometry.spherical_cap`), through the adapter's ``from_volume_mesh``."""
+        from .cap import spherical_cap
+
+        mesh = spherical_cap(a, R, h, element="hex20", **dict(resolution or {}))
+        geom = {"shape": "spherical_cap", "a": a, "R": R, "h": h, **dict(resolution or {})}
+        return cls.from_volume_mesh(mesh, material={"E": E, "nu": nu, "rho": rho}, geometry=geom, **kw)
+
     def _is_cap(self) -> bool:
         return self.geometry.get("shape") == "spherical_cap"
 

@@ -118,16 +118,6 @@ class CalculixAdapter(CapSolid, ExternalSolverAdapter):
         return ad
 
     @classmethod
-    def from_cap(cls, *, a: float, R: float, h: float, E: float, nu: float, rho: float,
-                 resolution: Mapping[str, Any] | None = None, **kw: Any) -> "CalculixAdapter":
-        """A free-edge spherical cap (``R = inf``: flat plate) meshed with C3D20 (:func:`stepnf.geometry.spherical_cap`)."""
-        from stepnf.geometry import spherical_cap
-
-        mesh = spherical_cap(a, R, h, element="hex20", **dict(resolution or {}))
-        geom = {"shape": "spherical_cap", "a": a, "R": R, "h": h, **dict(resolution or {})}
-        return cls.from_volume_mesh(mesh, material={"E": E, "nu": nu, "rho": rho}, geometry=geom, **kw)
-
-    @classmethod
     def from_inp(cls, path: str | Path, **kw: Any) -> "CalculixAdapter":
         """A user's mesh from an ``.inp`` file (see :mod:`.inpmesh`)."""
         from .inpmesh import read_inp_mesh

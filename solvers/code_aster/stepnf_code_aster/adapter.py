@@ -121,16 +121,6 @@ class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
         return cls(mesh.points, cells=mesh.cells, cell_type=mesh.cell_type, **kw)
 
     @classmethod
-    def from_cap(cls, *, a: float, R: float, h: float, E: float, nu: float, rho: float,
-                 resolution: Mapping[str, Any] | None = None, **kw: Any) -> "CodeAsterAdapter":
-        """A free-edge spherical cap (``R = inf``: plate) meshed with HEXA20."""
-        from stepnf.geometry import spherical_cap
-
-        mesh = spherical_cap(a, R, h, element="hex20", **dict(resolution or {}))
-        geom = {"shape": "spherical_cap", "a": a, "R": R, "h": h, **dict(resolution or {})}
-        return cls.from_volume_mesh(mesh, material={"E": E, "nu": nu, "rho": rho}, geometry=geom, **kw)
-
-    @classmethod
     def from_med(cls, path: str | Path, *, mesh_name: str | None = None, **kw: Any) -> "CodeAsterAdapter":
         """A user's MED volume mesh."""
         import h5py
