@@ -67,7 +67,7 @@ def _petsc_available() -> bool:
     if os.environ.get("STEPNF_NO_PETSC"):
         return False
     try:
-        import petsc4py  # noqa: F401
+        import petsc4py  # noqa: F401  (is it importable?)
     except Exception:
         return False
     return True

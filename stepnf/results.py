@@ -117,18 +117,6 @@ def versions() -> dict[str, str]:
             "scipy": scipy.__version__, "h5py": h5py.__version__, "platform": platform.platform()}
 
 
-def _put(group, name: str, value: Any) -> None:
-    if value is None:
-        return
-    if isinstance(value, (dict, list, tuple)) and not (isinstance(value, (list, tuple)) and value
-                                                       and all(isinstance(v, (int, float)) for v in value)):
-        group.attrs[name] = json.dumps(value, default=str)
-    elif isinstance(value, str):
-        group.attrs[name] = value
-    else:
-        group.attrs[name] = np.asarray(value, dtype=float) if not isinstance(value, (int, np.integer)) else value
-
-
 def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Path:
     """Write the run atomically (temporary file in the same folder, then ``os.replace``)."""
     import h5py

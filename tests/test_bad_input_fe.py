@@ -7,7 +7,6 @@ read (``stepnf.geometry.checks``, ``stepnf_fenicsx.adapter.read_mesh``).
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -1,5 +1,4 @@
 """A run killed part-way resumes from its checkpoint without redoing solver work, with the same numbers."""
-import numpy as np
 import pytest
 
 import stepnf.pipeline as pipeline

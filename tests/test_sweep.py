@@ -1,12 +1,10 @@
 """Sweeps on a local Dask cluster: killed part-way, resumed, every case stored exactly once."""
-import json
 import os
 import signal
 import subprocess
 import sys
 import textwrap
 import time
-from pathlib import Path
 
 import pytest
 
@@ -94,7 +92,6 @@ def test_sweep_killed_and_resumed(tmp_path, plugin_env):
     # same numbers as a serial run (the stored pre-kill cases included)
     sys.path.insert(0, str(site))
     try:
-        import importlib.metadata  # noqa: F401
         from stepnf import registry
 
         registry.installed_solvers(refresh=True)

@@ -91,7 +91,7 @@ class PolynomialAdapter(SolverAdapter):
         unknown = sorted(set(config) - {"file"})
         if unknown:
             raise SceneError(scene_file, f"model.{unknown[0]}",
-                             f"unknown key for solver 'polynomial'; allowed keys: ['file']")
+                             "unknown key for solver 'polynomial'; allowed keys: ['file']")
         if "file" not in config:
             raise SceneError(scene_file, "model.file", "solver 'polynomial' needs the key 'file' "
                              "(an .npz or HDF5 file with arrays M, K, G, H)")
