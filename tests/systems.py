@@ -73,3 +73,14 @@ def modal_to_physical(omega, g, h, seed: int = 0, *, rigid: int = 0, return_tran
     H = np.einsum("sa,sijk,ib,jc,kd->abcd", Q, hf, Q, Q, Q, optimize=True)
     out = ((M + M.T) / 2, (K + K.T) / 2, G, H)
     return out + (P,) if return_transform else out
+
+
+def solver_backends() -> list[str]:
+    """The linear-solver back ends available here (MUMPS when petsc4py imports)."""
+    out = ["dense", "superlu"]
+    try:
+        import petsc4py  # noqa: F401
+        out.append("mumps")
+    except Exception:  # pragma: no cover - petsc4py is a Debian package here
+        pass
+    return out

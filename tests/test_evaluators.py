@@ -24,7 +24,7 @@ from stepnf.evaluators import (FullOrderContext, Tolerances, _resonance_flags, d
                                smd_full, smd_modal)
 from stepnf.linalg import PseudoInverse
 from stepnf.modal import modal_analysis
-from systems import modal_to_physical, random_system
+from systems import solver_backends, modal_to_physical, random_system
 
 RTOL = 1e-10
 
@@ -35,14 +35,7 @@ def _context(K, M, R, backend="auto"):
     return FullOrderContext(Ks, Ms, PseudoInverse(Ks, Ms, R, counters=c, backend=backend), c, backend=backend)
 
 
-def _backends():
-    out = ["dense", "superlu"]
-    try:
-        import petsc4py  # noqa: F401
-        out.append("mumps")
-    except Exception:  # pragma: no cover - petsc4py is a Debian package here
-        pass
-    return out
+_backends = solver_backends
 
 
 def _modal_data(G, H, phi, Phi):

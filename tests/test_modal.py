@@ -17,17 +17,10 @@ import scipy.sparse as sp
 
 from stepnf.counters import Counters
 from stepnf.modal import modal_analysis
-from systems import modal_to_physical, random_system
+from systems import solver_backends, modal_to_physical, random_system
 
 
-def _backends():
-    out = ["dense", "superlu"]
-    try:
-        import petsc4py  # noqa: F401
-        out.append("mumps")
-    except Exception:  # pragma: no cover - petsc4py is a Debian package here
-        pass
-    return out
+_backends = solver_backends
 
 
 @pytest.fixture(scope="module")

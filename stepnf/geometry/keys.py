@@ -24,6 +24,17 @@ def check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene
         raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
 
 
+def number(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False) -> float:
+    """``table[key]`` as a finite float (or ``inf`` when allowed, written ``"inf"``)."""
+    v = table.get(key)
+    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        kind = "a number" + (' or "inf"' if allow_inf else "")
+        raise SceneError(scene_file, f"{where}.{key}", f"expected {kind}, got {v!r}")
+    return float(v)
+
+
 def positive_number(table: Mapping[str, Any], where: str, key: str, scene_file, *,
                     allow_inf: bool = False) -> float:
     """``table[key]`` as a float > 0 (or ``inf`` when allowed, written ``"inf"``)."""
@@ -61,12 +72,33 @@ def material(config: Mapping[str, Any], scene_file, *, required: bool = True) ->
     return out
 
 
-def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
-    """``[model.geometry]`` of a generated cap: ``{"shape", "a", "R", "h", "resolution"}``.
+def cap_dimensions(geom: Mapping[str, Any], scene_file, *, what: str = "a spherical cap") -> tuple[float, float, float]:
+    """``a``, ``R`` (a number or "inf") and ``h`` of ``[model.geometry]``, checked.
 
-    Refuses a non-shallow or impossible cap: R must exceed a (a sphere of
-    radius R has no cap wider than it), and h must be positive and below a.
+    Refuses an impossible cap: R must be at least a (a sphere of radius R has
+    no cap wider than it), and h must be positive and below a.
     """
+    missing = [k for k in ("a", "R", "h") if k not in geom]
+    if missing:
+        raise SceneError(scene_file, "model.geometry", f"missing keys {missing}; {what} needs ['a', 'R', 'h']")
+    a = number(geom, "model.geometry", "a", scene_file)
+    R = number(geom, "model.geometry", "R", scene_file, allow_inf=True)
+    h = number(geom, "model.geometry", "h", scene_file)
+    if a <= 0:
+        raise SceneError(scene_file, "model.geometry.a", f"outer radius must be > 0, got {a}")
+    if h <= 0:
+        raise SceneError(scene_file, "model.geometry.h", f"thickness must be > 0, got {h}")
+    if h >= a:
+        raise SceneError(scene_file, "model.geometry.h", f"thickness must be smaller than a = {a}, got {h}")
+    if R < a:
+        raise SceneError(scene_file, "model.geometry.R", f"radius of curvature must be >= a = {a} "
+                         f"(or \"inf\" for the flat plate), got {R}")
+    return a, R, h
+
+
+def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
+    """``[model.geometry]`` of a generated cap: ``{"shape", "a", "R", "h", "resolution"}`` (see
+    :func:`cap_dimensions`)."""
     geom = config.get("geometry")
     if not isinstance(geom, Mapping):
         raise SceneError(scene_file, "model.geometry", "expected a table with shape, a, R, h")
@@ -74,13 +106,6 @@ def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
     shape = geom.get("shape", "spherical_cap")
     if shape not in SHAPES:
         raise SceneError(scene_file, "model.geometry.shape", f"got {shape!r}. Pick one of {allowed(SHAPES)}")
-    a = positive_number(geom, "model.geometry", "a", scene_file)
-    R = positive_number(geom, "model.geometry", "R", scene_file, allow_inf=True)
-    h = positive_number(geom, "model.geometry", "h", scene_file)
-    if R <= a:
-        raise SceneError(scene_file, "model.geometry.R", f"R = {R:g} must exceed the cap radius a = {a:g} "
-                         "(and be much larger for a shallow shell), or be \"inf\" for a plate")
-    if h >= a:
-        raise SceneError(scene_file, "model.geometry.h", f"h = {h:g} must be smaller than a = {a:g} (a thin shell)")
+    a, R, h = cap_dimensions(geom, scene_file)
     return {"shape": shape, "a": a, "R": R, "h": h,
             "resolution": {k: geom[k] for k in RESOLUTION_KEYS if k in geom}}

@@ -113,21 +113,7 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
             raise SceneError(f, "model.geometry", f"missing keys {missing}; a spherical cap needs ['a', 'R', 'h']")
     geometry = None
     if any(k in geo for k in ("a", "R", "h")):
-        missing = [k for k in ("a", "R", "h") if k not in geo]
-        if missing:
-            raise SceneError(f, "model.geometry", f"missing keys {missing}; shell scales need ['a', 'R', 'h']")
-        a = _number(geo["a"], f, "model.geometry.a")
-        R = _number(geo["R"], f, "model.geometry.R", allow_inf=True)
-        h = _number(geo["h"], f, "model.geometry.h")
-        if a <= 0:
-            raise SceneError(f, "model.geometry.a", f"outer radius must be > 0, got {a}")
-        if h <= 0:
-            raise SceneError(f, "model.geometry.h", f"thickness must be > 0, got {h}")
-        if R < a:
-            raise SceneError(f, "model.geometry.R", f"radius of curvature must be >= a = {a} "
-                             f"(or \"inf\" for the flat plate), got {R}")
-        if h >= a:
-            raise SceneError(f, "model.geometry.h", f"thickness must be smaller than a = {a}, got {h}")
+        a, R, h = cap_keys.cap_dimensions(geo, f, what="the shell scaling (kappa, Gamma)")
         geometry = {"a": a, "R": R, "h": h}
         for k in RESOLUTION_KEYS:
             if k in geo:

@@ -89,21 +89,7 @@ def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, A
     if "shape" in geo and geo["shape"] != "spherical_cap":
         raise SceneError(f, "model.geometry.shape", f"unknown shape {geo['shape']!r}. Pick one of "
                          f"{allowed(('spherical_cap',))}")
-    missing = [k for k in ("a", "R", "h") if k not in geo]
-    if missing:
-        raise SceneError(f, "model.geometry", f"missing keys {missing}; a shallow shell needs ['a', 'R', 'h']")
-    a = _number(geo["a"], f, "model.geometry.a")
-    R = _number(geo["R"], f, "model.geometry.R", allow_inf=True)
-    h = _number(geo["h"], f, "model.geometry.h")
-    if a <= 0:
-        raise SceneError(f, "model.geometry.a", f"outer radius must be > 0, got {a}")
-    if h <= 0:
-        raise SceneError(f, "model.geometry.h", f"thickness must be > 0, got {h}")
-    if h >= a:
-        raise SceneError(f, "model.geometry.h", f"thickness must be smaller than a = {a}, got {h}")
-    if R < a:
-        raise SceneError(f, "model.geometry.R", f"radius of curvature must be >= a = {a} "
-                         f"(or \"inf\" for the flat plate), got {R}")
+    a, R, h = cap_keys.cap_dimensions(geo, f, what="a shallow shell")
     nr = geo.get("n_rings", DEFAULTS["n_rings"])
     if isinstance(nr, bool) or not isinstance(nr, int) or not 2 <= nr <= 200:
         raise SceneError(f, "model.geometry.n_rings", f"expected an integer in [2, 200], got {nr!r}")
