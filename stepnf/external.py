@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 from .adapter import SolverAdapter
 from .errors import SolverRunError, StepnfError, allowed
@@ -279,7 +280,9 @@ class ExternalSolverAdapter(SolverAdapter):
       raising :class:`SolverRunError` (e.g. via :func:`missing_output`) when a
       field is missing;
 
-    plus ``n_dofs``, ``mass_matrix`` and ``stiffness_matrix``. Run settings
+    plus ``n_dofs`` and :meth:`_matrices` (a run that stores K and M in
+    ``self._K`` and ``self._M``; :meth:`mass_matrix` and
+    :meth:`stiffness_matrix` call it once). Run settings
     (constructor keywords, usually scene keys): ``executable``, ``timeout``
     (s, per run), ``workdir`` (parent of the work folders; default the temp
     folder), ``keep`` (one of :data:`KEEP_POLICIES`) and ``parallel_runs``
@@ -311,6 +314,20 @@ class ExternalSolverAdapter(SolverAdapter):
         self._cache: dict[bytes, np.ndarray] = {}
 
     # hooks ------------------------------------------------------------
+    def _matrices(self) -> None:
+        """Hook: run the solver once to store ``self._K`` and ``self._M`` (scipy sparse, dof order)."""
+        raise NotImplementedError(f"{type(self).__name__} does not export its matrices")
+
+    def mass_matrix(self) -> sp.spmatrix:
+        if getattr(self, "_M", None) is None:
+            self._matrices()
+        return self._M
+
+    def stiffness_matrix(self) -> sp.spmatrix:
+        if getattr(self, "_K", None) is None:
+            self._matrices()
+        return self._K
+
     def write_force_job(self, workdir: Path, U: np.ndarray) -> Sequence[str]:
         """Write the solver input for the fields ``U`` (m, n) into ``workdir``; return the command."""
         raise NotImplementedError

@@ -46,6 +46,10 @@ class CapSolid:
     def _is_cap(self) -> bool:
         return self.geometry.get("shape") == "spherical_cap"
 
+    @property
+    def n_dofs(self) -> int:
+        return 3 * len(self.points)
+
     def dof_coordinates(self) -> np.ndarray:
         return np.repeat(self.points, 3, axis=0)
 

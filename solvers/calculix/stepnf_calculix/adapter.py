@@ -131,19 +131,6 @@ class CalculixAdapter(CapSolid, ExternalSolverAdapter):
         """Build from the scene's ``[model]`` table (keys in the package docstring)."""
         return _from_config(cls, dict(config), Path(base_dir), scene_file)
 
-    # ----------------------------------------------------------- protocol
-    @property
-    def n_dofs(self) -> int:
-        return 3 * len(self.node_ids)
-
-    def mass_matrix(self) -> sp.csr_matrix:
-        self._matrices()
-        return self._M
-
-    def stiffness_matrix(self) -> sp.csr_matrix:
-        self._matrices()
-        return self._K
-
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d.update(

@@ -134,19 +134,6 @@ class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
                     ) -> "CodeAsterAdapter":
         return _from_config(cls, dict(config), Path(base_dir), scene_file)
 
-    # ------------------------------------------------------------- protocol
-    @property
-    def n_dofs(self) -> int:
-        return 3 * len(self.points)
-
-    def mass_matrix(self) -> sp.csr_matrix:
-        self._matrices()
-        return self._M
-
-    def stiffness_matrix(self) -> sp.csr_matrix:
-        self._matrices()
-        return self._K
-
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d.update(solver="code_aster", command=self.command.text, n_nodes=int(len(self.points)),

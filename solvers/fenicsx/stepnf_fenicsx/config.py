@@ -57,8 +57,12 @@ def _number(value: Any, file, key: str, *, allow_inf: bool = False) -> float:
     return value
 
 
-def _table(config: Mapping[str, Any], name: str, keys, file) -> dict[str, Any]:
-    table = config.get(name, {})
+def _table(config: Mapping[str, Any], name: str, keys, file, *, required: bool = False) -> dict[str, Any]:
+    table = config.get(name)
+    if table is None:
+        if required:
+            raise SceneError(file, f"model.{name}", f"missing table; it needs the keys {allowed(keys)}")
+        table = {}
     if not isinstance(table, Mapping):
         raise SceneError(file, f"model.{name}", f"expected a table, got {table!r}")
     unknown = sorted(set(table) - set(keys))

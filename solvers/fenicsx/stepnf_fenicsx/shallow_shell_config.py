@@ -29,7 +29,7 @@ from typing import Any, Mapping
 from stepnf.errors import SceneError, allowed
 from stepnf.geometry import keys as cap_keys
 
-from .config import _number  # one number parser for both FEniCSx models
+from .config import _number, _table  # one parser for both FEniCSx models
 
 MODEL_KEYS = ("geometry", "material", "inplane_inertia", "penalty", "degree", "quadrature_degree")
 GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_rings", "grading")
@@ -39,18 +39,6 @@ MATERIAL_KEYS = ("E", "nu", "rho")
 #: six test modes within 0.01% (0.13% for (0,2), 0.9% for (2,1) near a 1:2 resonance).
 DEFAULTS: dict[str, Any] = {"inplane_inertia": False, "penalty": 10.0, "degree": 3, "quadrature_degree": None,
                             "n_rings": 12, "grading": 1.0}
-
-
-def _table(config: Mapping[str, Any], name: str, keys, file) -> dict[str, Any]:
-    table = config.get(name)
-    if table is None:
-        raise SceneError(file, f"model.{name}", f"missing table; it needs the keys {allowed(keys)}")
-    if not isinstance(table, Mapping):
-        raise SceneError(file, f"model.{name}", f"expected a table, got {table!r}")
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        raise SceneError(file, f"model.{name}", f"unknown keys {unknown}. Allowed keys: {allowed(keys)}")
-    return dict(table)
 
 
 def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, Any]:
@@ -85,7 +73,7 @@ def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, A
     E, nu, rho = mat["E"], mat["nu"], mat["rho"]
     out.update(E=E, nu=nu, rho=rho)
 
-    geo = _table(config, "geometry", GEOMETRY_KEYS, f)
+    geo = _table(config, "geometry", GEOMETRY_KEYS, f, required=True)
     if "shape" in geo and geo["shape"] != "spherical_cap":
         raise SceneError(f, "model.geometry.shape", f"unknown shape {geo['shape']!r}. Pick one of "
                          f"{allowed(('spherical_cap',))}")
