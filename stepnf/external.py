@@ -429,3 +429,25 @@ def missing_output(workdir: str | Path, message: str, *, log_name: str = "solver
     """A :class:`SolverRunError` for a missing field in an output, with the log tail."""
     workdir = Path(workdir)
     return SolverRunError(message, workdir=workdir, log_tail=log_tail(workdir / log_name))
+
+
+def run_keys(config: Mapping[str, Any], base_dir: Path, scene_file, ints: Sequence[str] = ("parallel_runs",)
+             ) -> dict[str, Any]:
+    """The run settings every external adapter takes from ``[model]``: ``timeout`` (s), ``workdir``
+    (relative to the scene), ``keep`` (one of :data:`KEEP_POLICIES`) and the positive integers ``ints``."""
+    from .errors import SceneError, allowed
+    from .geometry.keys import positive_int, positive_number
+
+    run: dict[str, Any] = {}
+    if "timeout" in config:
+        run["timeout"] = positive_number(config, "model", "timeout", scene_file)
+    if "workdir" in config:
+        run["workdir"] = Path(base_dir) / str(config["workdir"])
+    if "keep" in config:
+        if config["keep"] not in KEEP_POLICIES:
+            raise SceneError(scene_file, "model.keep", f"got {config['keep']!r}. Pick one of {allowed(KEEP_POLICIES)}")
+        run["keep"] = config["keep"]
+    for key in ints:
+        if key in config:
+            run[key] = positive_int(config, "model", key, scene_file)
+    return run

@@ -35,6 +35,14 @@ def number(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_
     return float(v)
 
 
+def positive_int(table: Mapping[str, Any], where: str, key: str, scene_file) -> int:
+    """``table[key]`` as an integer >= 1."""
+    v = table.get(key)
+    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+        raise SceneError(scene_file, f"{where}.{key}", f"expected a positive integer, got {v!r}")
+    return v
+
+
 def positive_number(table: Mapping[str, Any], where: str, key: str, scene_file, *,
                     allow_inf: bool = False) -> float:
     """``table[key]`` as a float > 0 (or ``inf`` when allowed, written ``"inf"``)."""

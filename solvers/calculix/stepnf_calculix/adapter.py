@@ -12,9 +12,9 @@ import scipy.sparse as sp
 
 from stepnf.errors import SceneError, allowed
 from stepnf.geometry import keys as cap_keys
-from stepnf.geometry.keys import MATERIAL_KEYS, positive_number
+from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
-from stepnf.external import CommandTemplate, ExternalSolverAdapter, KEEP_POLICIES, missing_output, require_files
+from stepnf.external import CommandTemplate, ExternalSolverAdapter, missing_output, require_files, run_keys
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
 from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
@@ -238,23 +238,9 @@ def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:
 # ------------------------------------------------------------------ scene
 def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapter:
     cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
-    run: dict[str, Any] = {}
+    run = run_keys(config, base_dir, scene_file, ints=("threads", "parallel_runs"))
     if "executable" in config:
         run["executable"] = str(config["executable"])
-    if "timeout" in config:
-        run["timeout"] = positive_number(config, "model", "timeout", scene_file)
-    if "workdir" in config:
-        run["workdir"] = base_dir / str(config["workdir"])
-    if "keep" in config:
-        if config["keep"] not in KEEP_POLICIES:
-            raise SceneError(scene_file, "model.keep", f"got {config['keep']!r}. Pick one of {allowed(KEEP_POLICIES)}")
-        run["keep"] = config["keep"]
-    for key in ("threads", "parallel_runs"):
-        if key in config:
-            t = config[key]
-            if isinstance(t, bool) or not isinstance(t, int) or t < 1:
-                raise SceneError(scene_file, f"model.{key}", f"expected a positive integer, got {t!r}")
-            run[key] = t
     if "template" in config:
         tpl = base_dir / str(config["template"])
         if not tpl.is_file():

@@ -14,9 +14,9 @@ import scipy.sparse as sp
 
 from stepnf.errors import SceneError, SolverRunError, allowed
 from stepnf.geometry import keys as cap_keys
-from stepnf.geometry.keys import MATERIAL_KEYS, positive_number
+from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
-from stepnf.external import KEEP_POLICIES, CommandTemplate, ExternalSolverAdapter, missing_output, require_files
+from stepnf.external import CommandTemplate, ExternalSolverAdapter, missing_output, require_files, run_keys
 
 from .med import MedError, add_nodal_field, read_mesh_nodes, read_nodal_steps, write_med
 
@@ -247,20 +247,7 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
             if not isinstance(config[key], str) or not config[key].strip():
                 raise SceneError(scene_file, f"model.{key}", f"expected a non-empty string, got {config[key]!r}")
             kw[key] = config[key]
-    for key in ("ncpus", "memory_mb", "parallel_runs"):
-        if key in config:
-            v = config[key]
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise SceneError(scene_file, f"model.{key}", f"expected a positive integer, got {v!r}")
-            kw[key] = v
-    if "timeout" in config:
-        kw["timeout"] = positive_number(config, "model", "timeout", scene_file)
-    if "workdir" in config:
-        kw["workdir"] = base_dir / str(config["workdir"])
-    if "keep" in config:
-        if config["keep"] not in KEEP_POLICIES:
-            raise SceneError(scene_file, "model.keep", f"got {config['keep']!r}. Pick one of {allowed(KEEP_POLICIES)}")
-        kw["keep"] = config["keep"]
+    kw.update(run_keys(config, base_dir, scene_file, ints=("ncpus", "memory_mb", "parallel_runs")))
     if "templates" in config:
         folder = base_dir / str(config["templates"])
         if not folder.is_dir():

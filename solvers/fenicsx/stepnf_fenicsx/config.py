@@ -121,10 +121,7 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
         geometry = {"a": a, "R": R, "h": h}
         for k in RESOLUTION_KEYS:
             if k in geo:
-                v = geo[k]
-                if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                    raise SceneError(f, f"model.geometry.{k}", f"expected a positive integer, got {v!r}")
-                geometry[k] = v
+                geometry[k] = cap_keys.positive_int(geo, "model.geometry", k, f)
         if "core" in geo:
             c = _number(geo["core"], f, "model.geometry.core")
             if not 0 < c < 1 / math.sqrt(2):
