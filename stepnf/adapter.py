@@ -133,7 +133,7 @@ class SolverAdapter:
     def internal_force(self, u: np.ndarray) -> np.ndarray:
         """Internal force ``f(u)`` (n,) for one displacement field ``u`` (n,)."""
         u = self._check_field(u)
-        f = np.asarray(self._internal_force(u), dtype=float)
+        f = real_array(self._internal_force(u), "internal force", self)
         return self._check_forces(f.reshape(1, -1) if f.ndim == 1 else f, 1)[0]
 
     def internal_forces(self, U: np.ndarray) -> np.ndarray:
@@ -147,7 +147,7 @@ class SolverAdapter:
             raise AdapterError("prescribed displacement fields contain NaN or inf")
         if len(U) == 0:
             return np.zeros((0, self.n_dofs))
-        return self._check_forces(np.asarray(self._internal_forces(U), dtype=float), len(U))
+        return self._check_forces(real_array(self._internal_forces(U), "internal forces", self), len(U))
 
     def _check_field(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
@@ -164,13 +164,9 @@ class SolverAdapter:
             raise AdapterError(
                 f"{type(self).__name__} returned forces of shape {F.shape}, expected ({m}, {self.n_dofs})"
             )
-        bad = ~np.isfinite(F)
-        if bad.any():
-            rows = sorted(set(np.nonzero(bad)[0].tolist()))
-            raise AdapterError(
-                f"{type(self).__name__} returned NaN or inf internal forces for field(s) {rows[:10]} "
-                f"({int(bad.sum())} entries); the solver probably failed to converge or diverged"
-            )
+        problem = nonfinite_forces(F)
+        if problem:
+            raise AdapterError(f"{type(self).__name__} returned {problem}")
         return F
 
     # -------------------------------------------------------- optional geometry
@@ -242,3 +238,98 @@ def implements_forces(cls: type) -> bool:
         getattr(cls, "_internal_force", None) is not SolverAdapter._internal_force
         or getattr(cls, "_internal_forces", None) is not SolverAdapter._internal_forces
     )
+
+
+# ------------------------------------------------------------------------------------------------
+# What every adapter returns is checked once, where it enters the core: forces in
+# SolverAdapter.internal_force(s) (above), K and M in checked_matrices (called by the pipeline
+# right after asking the adapter), so that a new adapter cannot get a bad array past stepnf.
+
+#: Largest relative asymmetry of K and M accepted (see :func:`stepnf.linalg.symmetry_defect`).
+#: Its source is round-off: an element matrix computed in double precision is symmetric to a few
+#: ulps (~1e-16 of its entries), assembling ~100 contributions per entry keeps that below ~1e-13,
+#: and a solver exporting both triangles with 14 significant digits adds at most 5e-15. 1e-10
+#: leaves a factor 1000 for that, while any modelling asymmetry (a wrong mass matrix, mixed-up
+#: dof orders, a follower load) is at the 1e-6 .. 1 level and makes NF and DNF disagree.
+SYMMETRY_TOLERANCE = 1e-10
+
+
+def adapter_label(adapter: Any) -> str:
+    """How messages name an adapter: its class and, when set, its registered name."""
+    name = getattr(adapter, "name", "") or ""
+    cls = type(adapter).__name__
+    return f"solver adapter {cls}" + (f" ({name!r})" if name and name != cls else "")
+
+
+def real_array(x: Any, what: str, adapter: Any) -> np.ndarray:
+    """``x`` as a float64 array, or :class:`AdapterError` for complex, text or object data."""
+    try:
+        a = np.asarray(x)
+    except Exception as exc:  # noqa: BLE001 - ragged lists and the like
+        raise AdapterError(f"{adapter_label(adapter)}: its {what} are not an array: {exc}") from None
+    if np.iscomplexobj(a):
+        if np.any(a.imag != 0):
+            raise AdapterError(f"{adapter_label(adapter)}: its {what} are complex-valued (dtype {a.dtype}, "
+                               f"largest |imaginary part| {float(np.max(np.abs(a.imag))):.3g}); stepnf needs real "
+                               "numbers")
+        a = a.real
+    if a.dtype.kind not in "biuf":
+        raise AdapterError(f"{adapter_label(adapter)}: its {what} have dtype {a.dtype}; expected real numbers")
+    return a.astype(float, copy=False)
+
+
+def nonfinite_forces(F: np.ndarray) -> str:
+    """'' when every force is finite, else what is wrong (which fields, how many entries)."""
+    bad = ~np.isfinite(F)
+    if not bad.any():
+        return ""
+    rows = sorted(set(np.nonzero(bad.reshape(len(F), -1))[0].tolist()))
+    return (f"NaN or inf internal forces for field(s) {rows[:10]} ({int(bad.sum())} entries); "
+            "the solver probably failed to converge or diverged")
+
+
+def checked_matrix(A: Any, name: str, adapter: Any, n: int | None = None) -> sp.csr_matrix:
+    """The matrix ``name`` ("K", "M") an adapter returned, as real CSR, or :class:`AdapterError` saying
+    what is wrong: not a matrix, complex, wrong shape, NaN/inf entries, not symmetric."""
+    from .linalg import symmetry_defect
+
+    who = adapter_label(adapter)
+    n = int(adapter.n_dofs) if n is None else int(n)
+    if A is None:
+        raise AdapterError(f"{who}: {name} is None; expected a sparse or dense ({n}, {n}) matrix")
+    if sp.issparse(A):
+        A = sp.csr_matrix(A)
+        data = real_array(A.data, f"{name} entries", adapter)
+        A = sp.csr_matrix((data, A.indices, A.indptr), shape=A.shape)
+    else:
+        a = real_array(A, f"{name} entries", adapter)
+        if a.ndim != 2:
+            raise AdapterError(f"{who}: {name} has shape {a.shape}; expected a ({n}, {n}) matrix")
+        A = sp.csr_matrix(a)
+        data = A.data
+    if A.shape != (n, n):
+        raise AdapterError(f"{who}: {name} has shape {A.shape}; expected ({n}, {n}) for its {n} dofs")
+    if n == 0:
+        raise AdapterError(f"{who}: the model has no dofs ({name} is 0 x 0)")
+    bad = ~np.isfinite(data)
+    if bad.any():
+        C = A.tocoo()
+        first = int(np.nonzero(~np.isfinite(C.data))[0][0])
+        raise AdapterError(f"{who}: {name} has {int(bad.sum())} NaN or inf entries, e.g. at row {int(C.row[first])}, "
+                           f"column {int(C.col[first])}; the solver's assembly or its output is broken")
+    d = symmetry_defect(A)
+    if d > SYMMETRY_TOLERANCE:
+        raise AdapterError(
+            f"{who}: {name} is not symmetric: |({name} - {name}^T) x|max / |{name} x|max = {d:.3g} for a random "
+            f"x (allowed {SYMMETRY_TOLERANCE:g}, the round-off of an assembly; "
+            "symmetrise in the adapter if it is round-off)"
+        )
+    return A
+
+
+def checked_matrices(adapter: Any) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """``(K, M)`` of ``adapter``, each checked once by :func:`checked_matrix` (real, (n, n), finite, symmetric)."""
+    n = int(adapter.n_dofs)
+    K = checked_matrix(adapter.stiffness_matrix(), "K", adapter, n)
+    M = checked_matrix(adapter.mass_matrix(), "M", adapter, n)
+    return K, M

@@ -8,15 +8,23 @@ fixed pseudo-random vector): a rerun reuses a stored chunk only when the
 fingerprints agree to 1e-9 relative, i.e. when it asks for the same fields
 (same modes, same amplitudes), whatever round-off the eigen-solver left. The
 folder is removed once the run's results are written.
+
+Checkpoints are a convenience, never a reason to fail: a chunk that cannot be
+written (full disk, read-only folder) disables checkpointing for the rest of
+the run with one warning, and the computation goes on.
 """
 from __future__ import annotations
 
-import os
+import io
 import shutil
-import tempfile
+import sys
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
+
+from .atomic import write_bytes
+from .errors import OutputError
 
 
 def fingerprint(U: np.ndarray) -> np.ndarray:
@@ -25,12 +33,22 @@ def fingerprint(U: np.ndarray) -> np.ndarray:
     return np.column_stack([U @ w, np.linalg.norm(U, axis=1)])
 
 
-class Checkpoint:
-    """A folder of atomically written chunks; see the module docstring."""
+def _warn_stderr(text: str) -> None:
+    print(f"stepnf: warning: {text}", file=sys.stderr, flush=True)
 
-    def __init__(self, folder: str | Path):
+
+class Checkpoint:
+    """A folder of atomically written chunks; see the module docstring.
+
+    ``warn`` receives the one message sent when checkpointing is disabled
+    (default: printed on stderr).
+    """
+
+    def __init__(self, folder: str | Path, warn: Callable[[str], None] | None = None):
         self.folder = Path(folder)
         self.reused = 0
+        self.disabled: str | None = None  # why chunks are no longer stored
+        self._warn = warn or _warn_stderr
 
     def _path(self, plan: str, index: int) -> Path:
         return self.folder / f"{plan}_{index:06d}.npz"
@@ -52,16 +70,24 @@ class Checkpoint:
         return out
 
     def store(self, plan: str, index: int, U: np.ndarray, result: np.ndarray) -> None:
-        self.folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
-        os.close(fd)
-        try:
-            with open(tmp, "wb") as f:
-                np.savez(f, fingerprint=fingerprint(U), result=result)
-            os.replace(tmp, self._path(plan, index))
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        """Store one chunk; on failure, warn once and store nothing more (the run goes on)."""
+        if self.disabled is not None:
+            return
+        buf = io.BytesIO()
+        np.savez(buf, fingerprint=fingerprint(U), result=result)
+        data = buf.getbuffer()
+        for attempt in (0, 1):
+            try:
+                write_bytes(self._path(plan, index), data, what="checkpoint chunk")
+                return
+            except OutputError as exc:
+                # another run of the same scene may have just removed the folder: try once more
+                if attempt == 0 and isinstance(exc.__cause__, FileNotFoundError):
+                    continue
+                self.disabled = str(exc)
+                self._warn(f"checkpointing disabled: {exc}; the run goes on without checkpoints "
+                           "(an interrupted run will start again from the beginning)")
+                return
 
     def discard(self) -> None:
         shutil.rmtree(self.folder, ignore_errors=True)

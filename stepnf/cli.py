@@ -1,12 +1,15 @@
 """Command-line interface: ``stepnf run SCENE``, ``stepnf solvers``.
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
-solver or numerical failure; 4 a sweep with failed cases; 1 anything unexpected.
+solver or numerical failure, or a file that cannot be written; 4 a sweep with
+failed cases; 1 anything unexpected (a bug: the message says so, and
+``stepnf --debug ...`` prints the traceback); 130 interrupted.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+import traceback
 import warnings
 from typing import Sequence
 
@@ -48,6 +51,7 @@ def _mpi_rank() -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from .errors import OutputError
     from .pipeline import run_scene
     from .progress import Progress
     from .scene import load_scene
@@ -62,7 +66,22 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.no_hdf5 or rank:
         scene.write_hdf5 = False
     progress = Progress(enabled=not args.quiet and not rank)
-    result = run_scene(scene, progress=progress)
+
+    def show(result) -> None:
+        if args.json:
+            print(result.to_json(indent=None if args.compact else 2), flush=True)
+        else:
+            print(format_table(result), flush=True)
+
+    # run_scene checks the output folder before any computation (SceneError on output.dir: exit 2)
+    try:
+        result = run_scene(scene, progress=progress)
+    except OutputError as exc:
+        # the results file could not be written (full disk): the computed results are not lost,
+        # they are shown as usual, then main() reports the error (exit 3)
+        if exc.result is not None and not rank:
+            show(exc.result)
+        raise
     if rank:  # under mpirun every rank computes the same results; rank 0 alone writes and prints
         return 0
     if scene.plot and not args.no_plot:
@@ -74,10 +93,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 result.extra_files.append(str(path))
         except ImportError as exc:  # matplotlib missing: results are still there
             print(f"warning: no figure ({exc})", file=sys.stderr)
-    if args.json:
-        print(result.to_json(indent=None if args.compact else 2))
-    else:
-        print(format_table(result))
+        except OSError as exc:  # full disk: the results file is written, the figure is not
+            from .atomic import reason
+
+            print(f"stepnf: warning: no figure {scene.output_dir / (scene.output_name + '_modes.png')}: "
+                  f"{reason(exc)}", file=sys.stderr)
+    show(result)
     return 0
 
 
@@ -87,12 +108,16 @@ def _mpi_size() -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from .sweep import load_sweep, run_sweep
+    from .sweep import MAX_WORKERS, load_sweep, run_sweep
 
     if _mpi_size() > 1:
         raise StepnfError("`stepnf sweep` must not run under mpirun: its store has one writer. Run it once and "
                           "let each case use MPI through the solver, or give it a Dask scheduler (docs/cluster.md)")
 
+    if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
+        raise SceneError(None, None, f"--workers: expected an integer in [1, {MAX_WORKERS}], got {args.workers}")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise SceneError(None, None, "--scheduler: expected a scheduler address such as tcp://host:8786")
     sweep = load_sweep(args.file)
     say = (lambda s: None) if args.quiet else (lambda s: print(f"[stepnf] {s}", file=sys.stderr, flush=True))
     rep = run_sweep(sweep, scheduler=args.scheduler, n_workers=args.workers, retry_failed=args.retry_failed,
@@ -151,8 +176,13 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
+    parser.add_argument("--debug", action="store_true",
+                        help="on failure, also print the Python traceback (for bug reports)")
+    # --debug after the command too (`stepnf run s.toml --debug`); SUPPRESS keeps the top-level value
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
     sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help="compute what a scene asks for")
+    p_run = sub.add_parser("run", parents=[common], help="compute what a scene asks for")
     p_run.add_argument("scene", help="scene file (TOML)")
     p_run.add_argument("--json", action="store_true", help="print one JSON document on stdout instead of the table")
     p_run.add_argument("--compact", action="store_true", help="JSON on one line")
@@ -161,14 +191,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_run.add_argument("--no-hdf5", action="store_true", help="do not write the HDF5 file")
     p_run.add_argument("--no-plot", action="store_true", help="do not draw figures")
     p_run.set_defaults(func=_cmd_run)
-    p_sw = sub.add_parser("sweep", help="run every case of a sweep file on Dask (resumable)")
+    p_sw = sub.add_parser("sweep", parents=[common], help="run every case of a sweep file on Dask (resumable)")
     p_sw.add_argument("file", help="sweep file (TOML)")
     p_sw.add_argument("--scheduler", help="address of an existing dask.distributed scheduler")
     p_sw.add_argument("--workers", type=int, help="local cluster size")
     p_sw.add_argument("--retry-failed", action="store_true", help="run again the cases stored as failed")
     p_sw.add_argument("--quiet", "-q", action="store_true")
     p_sw.set_defaults(func=_cmd_sweep)
-    p_cv = sub.add_parser("curves", help="von Karman shell: T_p by NF/MD/SMD and rho_p versus kappa "
+    p_cv = sub.add_parser("curves", parents=[common], help="von Karman shell: T_p by NF/MD/SMD and rho_p versus kappa "
                           "(paper Figs. 2 and 3) to HDF5, CSV and PNG")
     p_cv.add_argument("--kappa-max", type=float, default=100.0, help="largest kappa (grid from 0; default 100)")
     p_cv.add_argument("--n-kappa", type=int, default=200, help="number of kappa values (default 200)")
@@ -187,29 +217,59 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_cv.add_argument("--no-plot", action="store_true", help="data only, no PNG")
     p_cv.add_argument("--quiet", "-q", action="store_true", help="no progress messages on stderr")
     p_cv.set_defaults(func=_cmd_curves)
-    p_f4 = sub.add_parser("fig4", help="FE points of sweeps on the von Karman Gamma(kappa) curves (paper Fig. 4)")
+    p_f4 = sub.add_parser("fig4", parents=[common], help="FE points of sweeps on the von Karman Gamma(kappa) curves (paper Fig. 4)")
     p_f4.add_argument("stores", nargs="+", help="sweep stores (HDF5) written by `stepnf sweep`")
     p_f4.add_argument("--names", help="comma-separated legend names, one per store")
     p_f4.add_argument("--out", default="results/fig4", help="output folder")
     p_f4.add_argument("--n-kappa", type=int, default=300, help="points of the von Karman curves")
     p_f4.set_defaults(func=_cmd_fig4)
-    p_sol = sub.add_parser("solvers", help="list the installed solver adapters")
+    p_sol = sub.add_parser("solvers", parents=[common], help="list the installed solver adapters")
     p_sol.set_defaults(func=_cmd_solvers)
     args = parser.parse_args(argv)
+    formatwarning = warnings.formatwarning
+    if not args.debug:  # "stepnf: warning: ..." rather than a source line that means nothing to a user
+        warnings.formatwarning = _format_warning
     try:
         return int(args.func(args))
-    except (SceneError, UnknownSolverError) as exc:
-        print(f"stepnf: error: {exc}", file=sys.stderr)
-        return 2
-    except (SolverRunError, NumericalError) as exc:
-        print(f"stepnf: solver failure: {exc}", file=sys.stderr)
-        return 3
-    except StepnfError as exc:
-        print(f"stepnf: error: {exc}", file=sys.stderr)
-        return 3
-    except KeyboardInterrupt:
+    except BaseException as exc:  # noqa: BLE001 - every failure becomes a message and an exit code
+        if args.debug and not isinstance(exc, (SystemExit, KeyboardInterrupt)):
+            traceback.print_exc()
+        return report_failure(exc)
+    finally:
+        warnings.formatwarning = formatwarning
+
+
+def _format_warning(message, category, filename, lineno, line=None) -> str:
+    return f"stepnf: warning: {message}\n"
+
+
+def report_failure(exc: BaseException) -> int:
+    """Print what went wrong as one message on stderr and return the exit code (see the module docstring)."""
+    if isinstance(exc, SystemExit):
+        raise exc
+    if isinstance(exc, KeyboardInterrupt):
         print("stepnf: interrupted; results already written are intact", file=sys.stderr)
         return 130
+    if isinstance(exc, (SceneError, UnknownSolverError)):
+        print(f"stepnf: error: {exc}", file=sys.stderr)
+        return 2
+    if isinstance(exc, (SolverRunError, NumericalError)):
+        print(f"stepnf: solver failure: {exc}", file=sys.stderr)
+        return 3
+    if isinstance(exc, StepnfError):
+        print(f"stepnf: error: {exc}", file=sys.stderr)
+        return 3
+    if isinstance(exc, MemoryError):
+        print("stepnf: out of memory: the model or a requested quantity does not fit in this machine's memory; "
+              "use a coarser mesh, fewer modes or a machine with more memory", file=sys.stderr)
+        return 3
+    if isinstance(exc, OSError):  # a file or folder stepnf could not read or write
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"stepnf: error: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 3
+    print(f"stepnf: internal error (a bug in stepnf or an adapter; please report it): {type(exc).__name__}: {exc}\n"
+          "  rerun with --debug to see where it happened", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

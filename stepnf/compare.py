@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .curves import CurveOptions, compute_curves
-from .errors import StoreError
+from .errors import SceneError, StoreError
 from .evaluators import nf_modal
 from .sweep import read_store
 
@@ -49,6 +49,8 @@ class Point:
 
 def fe_points(store: str | Path, name: str | None = None, method: str = "dnf") -> list[Point]:
     """Every (case, master mode) of a sweep store with its kappa and Gamma by ``method``."""
+    if not Path(store).is_file():
+        raise SceneError(store, None, "no such sweep store: give the .h5 file that `stepnf sweep` wrote")
     recs = read_store(store)
     if not recs:
         raise StoreError(f"{store}: no stored case (run `stepnf sweep` first)")

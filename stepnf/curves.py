@@ -98,6 +98,19 @@ class CurveOptions:
     degeneracy: float = 1e-3
     model: dict[str, int] = field(default_factory=dict)
 
+    #: 200 kappa values take ~15 s; 10 000 take about 12 minutes, beyond any figure's resolution
+    MAX_KAPPAS = 10_000
+
+    def __post_init__(self) -> None:
+        """Refuse options no curve can be drawn with (the CLI's arguments arrive here unchecked)."""
+        for name, value in (("resonance_tol", self.tolerances.resonance), ("gap_tol", self.gap_resonance)):
+            if not (isinstance(value, (int, float)) and 0 < value < 1):
+                raise CurvesError(f"{name}: expected a relative window in (0, 1), got {value!r}")
+        if not (isinstance(self.omega_max, (int, float)) and math.isfinite(self.omega_max) and self.omega_max > 0):
+            raise CurvesError(f"omega_max: expected a finite number > 0, got {self.omega_max!r}")
+        if self.kappas is None and not (isinstance(self.n_kappa, int) and self.n_kappa <= self.MAX_KAPPAS):
+            raise CurvesError(f"n_kappa: expected an integer in [2, {self.MAX_KAPPAS}], got {self.n_kappa!r}")
+
     def grid(self) -> np.ndarray:
         if self.kappas is not None:
             k = np.asarray(self.kappas, dtype=float).ravel()
@@ -380,20 +393,27 @@ def _meta(curves: Curves) -> dict[str, Any]:
                            "w_NL = w_p (1 + T a^2); gamma = T / max|phi|^2; NF over all modes of the model"}
 
 
+CURVES_FORMAT = "stepnf-curves"
+CURVES_FORMAT_VERSION = 1
+
+
 def write_hdf5(curves: Curves, path: str | Path) -> Path:
     """Store everything: ``/kappa``, ``/frequencies/{omega,labels}``, ``/modes/<k>_<n>/...``.
 
     Per mode: ``omega``, ``w_max``, ``rho``, ``rho_mode``, ``T_cubic``, ``T_<m>``, ``gamma_<m>``,
     ``flags_<m>`` (bits: root attribute ``flag_bits``), ``gap_<m>``, ``notes_<m>`` for m in nf, md, smd.
-    Flagged values are stored as computed (``+-inf`` included).
+    Flagged values are stored as computed (``+-inf`` included). Root attributes ``format =
+    "stepnf-curves"``, ``format_version = 1`` (files of earlier stepnf say ``"stepnf-curves-1"``).
+    Built in memory and written atomically (:mod:`stepnf.atomic`): a full disk raises
+    :class:`stepnf.errors.OutputError` and leaves a previous file untouched.
     """
     import h5py
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    from .atomic import write_hdf5 as write_atomic
+
     st = h5py.string_dtype()
-    with h5py.File(path, "w") as f:
-        f.attrs["format"] = "stepnf-curves-1"
+
+    def fill(f: Any) -> None:
         f.attrs["meta"] = json.dumps(_meta(curves), default=str)
         f.attrs["flag_bits"] = json.dumps(FLAG_BITS)
         f.create_dataset("kappa", data=curves.kappa)
@@ -413,18 +433,20 @@ def write_hdf5(curves: Curves, path: str | Path) -> Path:
                 grp.create_dataset(f"flags_{m}", data=curves.flags[m][i])
                 grp.create_dataset(f"gap_{m}", data=curves.gaps(m)[i])
                 grp.create_dataset(f"notes_{m}", data=np.asarray(curves.notes[m][i], dtype=object), dtype=st)
-    return path
+    return write_atomic(path, fill, format=CURVES_FORMAT, format_version=CURVES_FORMAT_VERSION,
+                        what="curves file")
 
 
 def read_hdf5(path: str | Path) -> dict[str, Any]:
     """Plain dict of a file written by :func:`write_hdf5` (``modes`` keyed by ``(k, n)``)."""
     import h5py
 
+    from .atomic import check_format
+
     out: dict[str, Any] = {}
     with h5py.File(path, "r") as f:
-        if f.attrs.get("format") != "stepnf-curves-1":
-            raise CurvesError(f"{path}: not a stepnf curves file (attribute 'format' is "
-                              f"{f.attrs.get('format')!r}, expected 'stepnf-curves-1')")
+        check_format(f.attrs, path, format=CURVES_FORMAT, version=CURVES_FORMAT_VERSION, what="curves file",
+                     legacy=("stepnf-curves-1",), foreign_error=CurvesError)
         out["meta"] = json.loads(f.attrs["meta"])
         out["kappa"] = f["kappa"][()]
         out["frequencies"] = {"omega": f["frequencies/omega"][()],

@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from .adapter import SolverAdapter
 from .backbone import MethodResult
 from .counters import Counters
+from .errors import NumericalError
 from .evaluators import FullOrderContext, Tolerances, coupled
 from .modal import ModalBasis
 
@@ -52,26 +53,66 @@ def one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext
     if basis.complete or top >= 2.0 * w * (1 + tol.resonance):
         near_w, near_phi = basis.omega, basis.phi  # every mode near 2 w_p is among the computed ones
     else:
-        near_w, near_phi = ritz_near(ctx, 4 * w * w, st.Gv, counters)
+        try:
+            near_w, near_phi = ritz_near(ctx, 4 * w * w, st.Gv, counters)
+        except NumericalError:  # K - 4 w^2 M singular: DNF has flagged the exact resonance already
+            return []
     g = near_phi.T @ st.Gv
     floor = np.full(len(g), floor0)
     if st.Gv_check is not None:
         floor = np.maximum(floor, 10.0 * np.abs(near_phi.T @ (st.Gv - st.Gv_check)))
     labels = adapter.mode_labels(near_phi) if not basis.complete else list(adapter.mode_labels(near_phi))
+    resonant = [j for j in np.nonzero(coupled(g, tol.coupling, floor))[0]
+                if abs(near_w[j] / w - 2.0) <= 2.0 * tol.resonance]
     flags = []
-    for j in np.nonzero(coupled(g, tol.coupling, floor))[0]:
+    for js in _same_frequency(near_w, resonant):  # a degenerate pair at 2 w_p is ONE resonance: one flag
+        j = js[0]
         r = near_w[j] / w
-        if abs(r - 2.0) > 2.0 * tol.resonance:
-            continue
-        hit = np.nonzero(np.isclose(basis.omega, near_w[j], rtol=1e-9))[0]
-        s_idx = int(hit[0]) if len(hit) else None
-        name = (f"mode {s_idx}" if s_idx is not None else f"a mode at w = {near_w[j]:.6g}") + \
-            (f" {labels[j]}" if labels[j] is not None else "")
-        flags.append({"kind": "internal_resonance_1_2", "mode": s_idx, "label": labels[j], "ratio": float(r),
-                      "omega": float(near_w[j]),
-                      "message": f"DNF: {name} is in 1:2 internal resonance with master mode {p} "
-                                 f"(w_s/w_p = {r:.4f}); the normal form has a small denominator there"})
+        hit = [int(i) for i in np.nonzero(np.isclose(basis.omega, near_w[j], rtol=1e-9))[0]]
+        s_idx = hit[0] if hit else None
+        who = (f"mode {s_idx}" if len(hit) == 1 else f"modes {', '.join(map(str, hit))}" if hit
+               else f"a mode at w = {near_w[j]:.6g}" if len(js) == 1 else f"{len(js)} modes at w = {near_w[j]:.6g}")
+        name = who + (f" {labels[j]}" if labels[j] is not None else "")
+        flag = {"kind": "internal_resonance_1_2", "mode": s_idx, "label": labels[j], "ratio": float(r),
+                "omega": float(near_w[j]),
+                "message": f"DNF: {name} {'is' if len(js) == 1 and len(hit) <= 1 else 'are'} in 1:2 internal "
+                           f"resonance with master mode {p} (w_s/w_p = {r:.4f}); the normal form has a small "
+                           "denominator there"}
+        if len(hit) > 1:
+            flag["modes"] = hit
+        flags.append(flag)
     return flags
+
+
+def merge_flags(flags: list[dict], new: list[dict]) -> list[dict]:
+    """``flags`` plus those of ``new`` that say something new: one flag per (kind, mode).
+
+    A flag of the same kind without a mode (DNF's "K - 4 w^2 M is singular")
+    takes the mode, label, ratio and frequency the 1:2 check found, instead of
+    a second flag for the same resonance.
+    """
+    out = list(flags)
+    for f in new:
+        same = [e for e in out if e.get("kind") == f.get("kind")]
+        if any(e.get("mode") == f.get("mode") and f.get("mode") is not None for e in same):
+            continue
+        unnamed = [e for e in same if e.get("mode") is None]
+        if unnamed:
+            unnamed[0].update({k: v for k, v in f.items() if k != "message"})
+            continue
+        out.append(f)
+    return out
+
+
+def _same_frequency(w: np.ndarray, idx: list[int], rtol: float = 1e-6) -> list[list[int]]:
+    """``idx`` grouped by equal ``w[idx]`` (within ``rtol``: the members of a degenerate pair)."""
+    groups: list[list[int]] = []
+    for j in sorted(idx, key=lambda i: w[i]):
+        if groups and abs(w[j] - w[groups[-1][0]]) <= rtol * abs(w[j]):
+            groups[-1].append(j)
+        else:
+            groups.append([j])
+    return groups
 
 
 def ritz_near(ctx: FullOrderContext, sigma: float, Gv: np.ndarray, counters: Counters,
@@ -118,28 +159,37 @@ def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.n
     return floor
 
 
+def inverse_mass_norm2(M: sp.spmatrix, v: np.ndarray) -> float:
+    """``v^T M^-1 v`` by Jacobi-preconditioned CG to 1e-10 (M is well conditioned)."""
+    import scipy.sparse.linalg as spla
+
+    if not np.any(v):
+        return 0.0
+    d = np.asarray(M.diagonal()).ravel()
+    x, info = spla.cg(M, v, M=sp.diags(1.0 / d), tol=1e-10, atol=0.0, maxiter=500)
+    return float(v @ x)
+
+
+def captured_fraction_of_norm(g_retained: np.ndarray, norm2: float) -> float:
+    """``sum_S g_s^2 / norm2`` with ``norm2 = G^T M^-1 G``; 1 when G vanishes."""
+    return float(np.sum(g_retained**2) / norm2) if norm2 > 0 else 1.0
+
+
 def captured_fraction(Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix) -> float:
     """Share of ``G(phi_p, phi_p)`` the retained modes carry: ``sum_S g_s^2 / (Gv^T M^-1 Gv)``.
 
     The modal sums of NF, MD and SMD see only that share; the rest lies on
-    modes not retained (in-plane and thickness modes of a 3D solid). M^-1 by
-    Jacobi-preconditioned CG (M is well conditioned).
+    modes not retained (in-plane and thickness modes of a 3D solid).
     """
-    import scipy.sparse.linalg as spla
-
-    total2 = float(Gv @ Gv)
-    if total2 == 0.0:
-        return 1.0
-    d = np.asarray(M.diagonal()).ravel()
-    x, info = spla.cg(M, Gv, M=sp.diags(1.0 / d), tol=1e-10, atol=0.0, maxiter=500)
-    full = float(Gv @ x)
-    return float(np.sum(g_retained**2) / full) if full > 0 else 1.0
+    return captured_fraction_of_norm(g_retained, inverse_mass_norm2(M, Gv))
 
 
-def truncation_flags(r: MethodResult, Gv: np.ndarray, g_retained: np.ndarray, M: sp.spmatrix,
-                     n: int, threshold: float = 0.99) -> list[dict]:
-    """Flag a modal-sum result whose retained modes miss more than 1% of the quadratic force."""
-    frac = captured_fraction(Gv, g_retained, M)
+def truncation_flags(r: MethodResult, frac: float, n: int, threshold: float = 0.99) -> list[dict]:
+    """Flag a modal-sum result whose ``n`` retained modes carry only ``frac`` < 99% of the quadratic force.
+
+    ``frac`` is :func:`captured_fraction` (targeted STEP) or the same share
+    from the full STEP plan (:func:`captured_fraction_of_norm`).
+    """
     r.extra["captured_fraction"] = frac
     if frac >= threshold:
         return []
@@ -221,6 +271,31 @@ def check_conditioning(r: float, *, flag_at: float = 1e-6, refuse_at: float = 1e
     if err > flag_at:
         return [{"kind": "ill_conditioned", "value": float(err), "message": text}]
     return []
+
+
+def soft_mode_flags(rigid_eigenvalues: np.ndarray, scale: float, rigid_tolerance: float,
+                    refuse_at: float = 1e-2) -> list[dict]:
+    """Flag modes counted as rigid (``|w^2| <= rigid_tolerance * scale``) whose eigenvalue is resolved.
+
+    A true rigid-body eigenvalue is zero up to round-off, ``~eps * scale``. An
+    eigenvalue above ``eps / refuse_at * scale`` is resolved to better than
+    ``refuse_at`` (the bound :func:`check_conditioning` accepts for elastic
+    modes), so it may well be a very soft elastic mode (a weak support, a
+    flexible appendage): counted as rigid, it shifts every master index and
+    leaves the modal sums. ``rigid_eigenvalues`` in (rad/s)^2.
+    """
+    floor = np.finfo(float).eps / refuse_at * scale
+    lam = np.asarray(rigid_eigenvalues, dtype=float)
+    suspects = [int(i) for i in np.nonzero(lam > floor)[0]]
+    if not suspects:
+        return []
+    text = ", ".join(f"w^2 = {lam[i]:.3e}" for i in suspects)
+    return [{"kind": "soft_modes_counted_rigid", "modes": suspects,
+             "message": f"{len(suspects)} of the {len(lam)} modes counted as rigid ({text}; rigid modes "
+                        f"{suspects} in ascending order) lie below analysis.rigid_tolerance x lambda_max = "
+                        f"{rigid_tolerance:g} x {scale:.3e} but far above round-off ({floor:.1e}): they may be "
+                        "real, very soft elastic modes. If so, set analysis.rigid_modes to the number of true "
+                        "rigid-body modes or lower analysis.rigid_tolerance; elastic mode indices shift with it"}]
 
 
 def conditioning_flags(basis: ModalBasis, K: sp.spmatrix, M: sp.spmatrix,

@@ -67,6 +67,21 @@ class StoreError(StepnfError, ValueError):
     """A results file or sweep store is unreadable, corrupt or not stepnf's."""
 
 
+class OutputError(StepnfError):
+    """A result file could not be written (full disk, read-only or vanished folder, ...).
+
+    ``path`` is the file, ``errno`` the operating system's error number (or
+    ``None``). ``result`` may hold what was computed and could not be stored,
+    so that a caller can still show it.
+    """
+
+    def __init__(self, message: str, *, path: str | Path | None = None, errno: int | None = None):
+        self.path = None if path is None else str(path)
+        self.errno = errno
+        self.result: Any = None
+        super().__init__(message)
+
+
 class NumericalError(StepnfError, ArithmeticError):
     """A numerical stage cannot produce a meaningful number (singular matrix, NaN)."""
 
@@ -74,3 +89,23 @@ class NumericalError(StepnfError, ArithmeticError):
 def allowed(values: Iterable[Any]) -> str:
     """Format a list of allowed values for an error message."""
     return "[" + ", ".join(repr(v) for v in values) + "]"
+
+
+class MeshError(SceneError):
+    """A user's mesh is unusable (empty, NaN coordinates, dangling or degenerate cells, ...).
+
+    A :class:`SceneError` (bad input, exit code 2) whose ``file`` is the mesh
+    file; the message names the cell or node at fault (0-based positions in
+    the file, or the file's own ids when it numbers its nodes and elements).
+    """
+
+    def __init__(self, file: str | Path | None, message: str):
+        super().__init__(file, None, message)
+
+
+class UnitsWarning(UserWarning):
+    """The model's numbers look like a mix of unit systems (e.g. a mesh in mm with SI material constants)."""
+
+
+class ModelWarning(UserWarning):
+    """The model computes, but something in it deserves a look (e.g. elastic modes counted as rigid)."""

@@ -41,6 +41,7 @@ import signal
 import subprocess
 import tempfile
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, Mapping, Sequence
@@ -48,7 +49,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from .adapter import SolverAdapter
+from .adapter import SolverAdapter, nonfinite_forces, real_array
 from .errors import SolverRunError, StepnfError, allowed
 
 #: Work-folder keeping policies.
@@ -320,13 +321,23 @@ class ExternalSolverAdapter(SolverAdapter):
 
     def mass_matrix(self) -> sp.spmatrix:
         if getattr(self, "_M", None) is None:
-            self._matrices()
+            self._read_matrices_guarded()
         return self._M
 
     def stiffness_matrix(self) -> sp.spmatrix:
         if getattr(self, "_K", None) is None:
-            self._matrices()
+            self._read_matrices_guarded()
         return self._K
+
+    def _read_matrices_guarded(self) -> None:
+        """:meth:`_matrices`, with a result file it cannot parse reported as a :class:`SolverRunError`."""
+        try:
+            self._matrices()
+        except StepnfError:
+            raise
+        except (ValueError, KeyError, IndexError, EOFError, OSError, zipfile.BadZipFile) as exc:
+            raise SolverRunError(f"{self.solver_label}: cannot read K and M from the solver's output: "
+                                 f"{type(exc).__name__}: {exc}") from None
 
     def write_force_job(self, workdir: Path, U: np.ndarray) -> Sequence[str]:
         """Write the solver input for the fields ``U`` (m, n) into ``workdir``; return the command."""
@@ -408,12 +419,23 @@ class ExternalSolverAdapter(SolverAdapter):
         with self.work_folder(prefix=f"{self.name or 'solver'}-forces-") as wd:
             argv = self.write_force_job(wd, U)
             rec = self.run(argv, wd)
-            F = np.asarray(self.read_forces(wd, len(U)), dtype=float)
+            # the result files enter here: whatever is wrong with them (garbage, truncation, NaN) is a
+            # solver failure that names the work folder (kept: on_error) and quotes the solver's log
+            try:
+                F = real_array(self.read_forces(wd, len(U)), "forces", self)
+            except SolverRunError:
+                raise
+            except (StepnfError, ValueError, KeyError, IndexError, EOFError, OSError, zipfile.BadZipFile) as exc:
+                raise SolverRunError(f"{self.solver_label}: cannot read the forces from the solver's output: "
+                                     f"{exc}", workdir=wd, log_tail=log_tail(rec.log)) from None
             if F.shape != U.shape:
                 raise SolverRunError(
                     f"{type(self).__name__}: read forces of shape {F.shape}, expected {U.shape}",
                     workdir=wd, log_tail=log_tail(rec.log),
                 )
+            problem = nonfinite_forces(F)
+            if problem:
+                raise SolverRunError(f"{self.solver_label}: {problem}", workdir=wd, log_tail=log_tail(rec.log))
         return F
 
     def clear_cache(self) -> None:

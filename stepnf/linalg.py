@@ -123,7 +123,8 @@ def _mumps(A: sp.csr_matrix, counters: Counters | None, label: str) -> Factoriza
     n = A.shape[0]
     P = PETSc.Mat().createAIJ(size=A.shape, csr=(A.indptr, A.indices, A.data), comm=PETSc.COMM_SELF)
     P.assemble()
-    symmetric = abs(A - A.T).max() <= 1e-13 * abs(A).max() if A.nnz else True
+    # cheap probe (two products with A and A^T) instead of forming A - A^T, which took seconds at 100k dofs
+    symmetric = symmetry_defect(A) <= 1e-13
     ksp = PETSc.KSP().create(PETSc.COMM_SELF)
     ksp.setOperators(P)
     ksp.setType("preonly")
@@ -150,6 +151,42 @@ def _mumps(A: sp.csr_matrix, counters: Counters | None, label: str) -> Factoriza
     fac = Factorization(solve, n, "mumps", counters, label)
     fac._petsc = (P, ksp, xv, bv)  # keep alive
     return fac
+
+
+def symmetry_defect(A: sp.spmatrix | np.ndarray, *, seed: int = 0, probes: int = 2) -> float:
+    """Relative asymmetry of a square matrix from random probes, without forming ``A - A^T``.
+
+    ``max_i |((A - A^T) x)_i| / max_i |(A x)_i|``, the largest over ``probes``
+    Gaussian vectors ``x`` (a fixed seed: the same number on every run). It is
+    0 for a symmetric matrix and, otherwise, of the order of the relative
+    (root-mean-square per row) size of the antisymmetric part: a random ``x``
+    cancels a nonzero ``A - A^T`` with probability 0. Cost: two products per
+    probe, ~0.1 s at 24M stored entries (100k dofs), where
+    ``abs(A - A.T).max()`` needs a transposed copy and a sparse subtraction
+    (and ``abs(A)`` alone a copy of the entries: ~0.5 s each). Entries that
+    are not finite give ``inf``.
+    """
+    n = A.shape[0]
+    if len(A.shape) != 2 or A.shape != (n, n):
+        return float("inf")
+    if n == 0:
+        return 0.0
+    A = sp.csr_matrix(A) if sp.issparse(A) else np.asarray(A)
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    with np.errstate(all="ignore"):
+        for _ in range(max(1, probes)):
+            x = rng.standard_normal(n)
+            Ax = np.asarray(A @ x).ravel()
+            num = float(np.max(np.abs(Ax - np.asarray(A.T @ x).ravel())))
+            den = float(np.max(np.abs(Ax)))
+            if not (np.isfinite(num) and np.isfinite(den)):
+                return float("inf")
+            if den > 0:
+                worst = max(worst, num / den)
+            elif num > 0:
+                return float("inf")
+    return worst
 
 
 def isostatic_dofs(R: np.ndarray) -> np.ndarray:

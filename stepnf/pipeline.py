@@ -7,21 +7,24 @@ whatever the model size; the full STEP over the retained modes runs only when
 """
 from __future__ import annotations
 
+import contextlib
 import time
+import warnings
 from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 
-from .adapter import SolverAdapter
+from .adapter import SolverAdapter, checked_matrices
 from .backbone import MethodResult
 from .checkpoint import Checkpoint
 from .counters import Counters
 from .deflation import DeflatedSolver
-from .diagnostics import (check_conditioning, conditioning_flags, conditioning_ratio, smooth_eigenvalue, coupling_floor, floor_scale, one_two_flags, slow_fast_ratio,
-                          t_error, truncation_flags)
-from .errors import SceneError
+from .diagnostics import (captured_fraction, captured_fraction_of_norm, check_conditioning, conditioning_flags,
+                          conditioning_ratio, coupling_floor, floor_scale, inverse_mass_norm2, merge_flags, one_two_flags,
+                          slow_fast_ratio, smooth_eigenvalue, soft_mode_flags, t_error, truncation_flags)
+from .errors import ModelWarning, NumericalError, SceneError
 from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
 from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
@@ -68,9 +71,82 @@ def _modal_method(name: str, p: int, omega, g, h, S, tol, labels, floor=None) ->
     raise KeyError(name)
 
 
+@contextlib.contextmanager
+def overflow_is_numerical(where: dict, steps: dict):
+    """Floating-point overflow in the evaluators becomes a :class:`NumericalError` naming the stage.
+
+    ``where`` is updated by the caller with the master mode and method being
+    evaluated; ``steps`` (master -> :class:`MasterStep`) gives the size of the
+    STEP coefficients for the message. Exact resonances are not overflows
+    (singular solves and zero denominators are flagged by the evaluators).
+    """
+    try:
+        with np.errstate(over="raise"):
+            yield
+    except (FloatingPointError, OverflowError) as exc:
+        big = max((float(np.abs(st.Gv).max()) for st in steps.values()), default=float("nan"))
+        at = ", ".join(f"{k} {v}" for k, v in where.items())
+        raise NumericalError(f"{at}: floating-point overflow ({exc}): the STEP coefficients (largest "
+                             f"|G(phi_p, phi_p)| entry {big:.1e}) are beyond double precision's range; check "
+                             "the model's units and the forces the solver returns") from exc
+
+
+def check_rigid_count(scene: Scene, n: int) -> None:
+    """``analysis.rigid_modes`` must leave elastic modes: at most ``n - 1`` of the model's ``n`` dofs."""
+    if scene.rigid_modes is not None and scene.rigid_modes >= n:
+        raise SceneError(scene.file, "analysis.rigid_modes",
+                         f"{scene.rigid_modes} rigid-body modes asked for, but the model has only {n} dofs: "
+                         f"allowed 0..{n - 1} (or \"auto\")")
+
+
+def check_elastic_modes(scene: Scene, basis: ModalBasis) -> None:
+    """A model with no elastic mode (K zero, or every mode counted rigid) is refused, naming why."""
+    if basis.n_elastic or not basis.rigid.shape[1]:
+        return
+    if scene.rigid_modes is not None:
+        raise SceneError(scene.file, "analysis.rigid_modes",
+                         f"rigid_modes = {scene.rigid_modes} leaves no elastic mode among the "
+                         f"{basis.rigid.shape[1]} computed; allowed: fewer rigid modes, or \"auto\"")
+    raise NumericalError(f"the model has no elastic mode: all {basis.rigid.shape[1]} computed modes have "
+                         f"|w^2| <= analysis.rigid_tolerance ({scene.rigid_tolerance:g}) x lambda_max, so the "
+                         "stiffness matrix K is zero or nearly so for the solver's model ([model] of "
+                         f"{scene.where()}); check K, the material's Young's modulus and the units")
+
+
+def _captured_fraction(p: int, st, full, g_all: np.ndarray, S, M: sp.spmatrix) -> float | None:
+    """Share of ``G(phi_p, phi_p)`` the retained modes ``S`` carry (targeted or full STEP), or None."""
+    if st is not None:
+        return captured_fraction(st.Gv, g_all[S], M)
+    if full is None:
+        return None
+    cols = list(full.modes)
+    if p not in cols or cols.index(p) not in full.g_norm2:
+        return None
+    j = cols.index(p)
+    g = np.zeros(len(g_all))
+    g[full.modes] = full.g[:, j, j]
+    return captured_fraction_of_norm(g[S], full.g_norm2[j])
+
+
 def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = True) -> RunResult:
-    """Compute what ``scene`` asks for and return (and, with ``write``, store) the results."""
+    """Compute what ``scene`` asks for and return (and, with ``write``, store) the results.
+
+    With ``write``, the output folder is checked first (before any solver work): a folder that
+    is a file, read-only or cannot be created is a :class:`SceneError` on ``output.dir``. A
+    results file that cannot be written at the end (full disk) raises
+    :class:`stepnf.errors.OutputError` whose ``result`` holds what was computed; the checkpoint
+    folder is removed in both cases, and a previous results file is left untouched.
+    """
+    from .atomic import check_folder
+    from .errors import OutputError
+
     progress = progress or Progress(enabled=False)
+    writing = write and scene.write_hdf5
+    if writing:
+        why = check_folder(scene.output_dir)
+        if why is not None:
+            raise SceneError(scene.file, "output.dir", f"the output folder {scene.output_dir} is not "
+                             f"usable: {why}")
     cls = get_solver(scene.solver)
     checkpoint = None
     t_start = time.perf_counter()
@@ -86,7 +162,7 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
             adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
         # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
         # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
-        if write and scene.write_hdf5 and not adapter.collective:
+        if writing and not adapter.collective:
             checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
         try:
             result = _run_adapter(scene, adapter, progress, checkpoint)
@@ -97,12 +173,17 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
             progress.message(result.counters_note)
     result.timings.update(progress.timings)
     result.timings["total"] = time.perf_counter() - t_start
-    if write and scene.write_hdf5:
+    if writing:
         path = scene.output_dir / f"{scene.output_name}.h5"
-        write_hdf5(result, path, scene.text)
+        try:
+            write_hdf5(result, path, scene.text)
+        except OutputError as exc:
+            exc.result = result  # computed, not stored: the caller can still show it
+            raise
+        finally:
+            if checkpoint is not None:  # the results are computed: the chunks are of no more use
+                checkpoint.discard()
         result.hdf5_path = str(path)
-        if checkpoint is not None:
-            checkpoint.discard()
     return result
 
 
@@ -163,8 +244,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     methods = resolve_methods(scene.methods, scene.qm_order or "full")
     evaluators = set(methods.values())
     with progress.stage("matrices", "mass and stiffness matrices"):
-        K = sp.csr_matrix(adapter.stiffness_matrix(), dtype=float)
-        M = sp.csr_matrix(adapter.mass_matrix(), dtype=float)
+        K, M = checked_matrices(adapter)  # real, (n, n), finite, symmetric: else AdapterError (exit 3)
     n = K.shape[0]
     if K.shape != (n, n) or M.shape != (n, n) or n != adapter.n_dofs:
         raise SceneError(scene.file, "model", f"the adapter returned K {K.shape} and M {M.shape} for "
@@ -202,6 +282,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     eig = adapter.eigenmodes if adapter.provides_eigenmodes else None
     X, dirs = adapter.dof_coordinates(), adapter.dof_directions()
     cands = rigid_body_fields(X, dirs) if X is not None and dirs is not None else None
+    check_rigid_count(scene, n)
     smooth = smooth_eigenvalue(K, M, X, dirs)  # refuse a hopelessly ill-conditioned model before solving
     if smooth is not None:
         check_conditioning(conditioning_ratio(smooth, K, M))
@@ -210,6 +291,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                                rigid_modes=scene.rigid_modes, degeneracy_tolerance=scene.degeneracy_tolerance,
                                max_modes=scene.max_modes, backend=backend, eigensolver=eig, enough=enough,
                                rigid_candidates=cands, progress=progress.message)
+    check_elastic_modes(scene, basis)
     orient_degenerate(basis, M, probe_vector(X, dirs, n))  # the same twins whatever the solver
     label_cache.clear()
     labels = labels_of(basis)
@@ -218,6 +300,11 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     omega, Phi = basis.omega, basis.phi
     m = basis.n_elastic
     run_flags: list[dict] = conditioning_flags(basis, K, M, smooth)
+    if scene.rigid_modes is None:
+        run_flags += soft_mode_flags(basis.rigid_eigenvalues, lambda_scale(K, M), scene.rigid_tolerance)
+    for fl in run_flags:
+        if fl["kind"] == "soft_modes_counted_rigid":
+            warnings.warn(fl["message"], ModelWarning, stacklevel=2)
     if needs_modal and m < n_ret:
         run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
                           f"{n_ret} asked for in the modal sums"})
@@ -249,8 +336,11 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         Sfull = retained_set(max(masters), n_ret, m)
         qf = np.array([step_amplitude(Phi[:, s], policy, length, mask) for s in Sfull])
         with progress.stage("step_full", f"STEP (full plan) over {len(Sfull)} modes"):
+            # the M^-1 norm of each master's G(phi_p, phi_p), for the modal-truncation flag
             full = full_step(forces, K, Phi[:, Sfull], qf, policy, modes=Sfull,
-                             progress=lambda d, t: progress.bar(d, t, "STEP"))
+                             progress=lambda d, t: progress.bar(d, t, "STEP"),
+                             norm2=lambda v: inverse_mass_norm2(M, v),
+                             norm_columns=[list(Sfull).index(p) for p in masters if p in list(Sfull)])
         arrays["g"], arrays["h"], arrays["full_modes"] = full.g, full.h, Sfull
         run_flags += full.flags
 
@@ -284,8 +374,10 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
 
     scales = adapter.shell_scales()
     modes: list[ModeResult] = []
-    with progress.stage("evaluators", "normal form and modal derivatives"):
+    where = {"stage": "evaluators"}
+    with overflow_is_numerical(where, steps), progress.stage("evaluators", "normal form and modal derivatives"):
         for p in masters:
+            where.update(master=int(p), method="(diagnostics)")
             phi = Phi[:, p]
             twins = basis.twins(p)
             st = steps.get(p)
@@ -312,20 +404,22 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                 rec.flags += st.flags
             y = None
             for name, ev in methods.items():
+                where.update(master=int(p), method=name)
                 if ev in MODAL_METHODS:
                     S = retained_set(p, n_ret, m)
                     r = _modal_method(ev, p, omega, g_mod, h_mod, S, tol, labels, floor)
                     if g_chk is not None:
                         r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels, floor)
                         r.T_error = t_error(r.T, r2.T)
-                    if st is not None:
-                        r.flags += truncation_flags(r, st.Gv, g_all[S], M, len(S))
+                    frac = _captured_fraction(p, st, full, g_all, S, M)
+                    if frac is not None:
+                        r.flags += truncation_flags(r, frac, len(S))
                 elif ev == "dnf":
                     dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
                     dh = st.h - st.h_check if st.h_check is not None else 0.0
                     r, y = dnf(p, phi, omega[p], st.Gv, st.h, context(), dGv=dG, dh=dh)
-                    r.flags += one_two_flags(p, omega[p], st, basis, context(), floor_scale(st, M, tol),
-                                              tol, adapter, counters)
+                    r.flags = merge_flags(r.flags, one_two_flags(p, omega[p], st, basis, context(),
+                                                                 floor_scale(st, M, tol), tol, adapter, counters))
                 elif ev == "smd_full":
                     r = smd_full(p, phi, omega[p], st.Gv, st.h, context(), y=y)
                     if st.Gv_check is not None:  # T again at the check amplitude: one more K^+ solve
@@ -355,6 +449,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                 rec.methods[name] = r
             modes.append(rec)
             arrays[f"Gv_{p}"] = st.Gv if st is not None else np.zeros(0)
+
     arrays["phi_masters"] = Phi[:, masters]
     if X is not None:
         arrays["dof_coordinates"] = np.asarray(X, dtype=float)

@@ -3,22 +3,22 @@
 The JSON document (``stepnf run --json``) holds at least ``modes`` (each with
 ``index``, ``label``, ``omega``, ``rho`` and ``methods``: ``nf``/``dnf``/``md``/
 ``smd`` -> ``{T, C, flags, ...}``) and ``counts`` (``force_evaluations``,
-``linear_solves``, ``factorizations``). The HDF5 file is written to a
-temporary name in the same folder and renamed into place, so a crash never
-leaves a half-written file and never destroys the previous one.
+``linear_solves``, ``factorizations``). The HDF5 file (root attributes
+``format = "stepnf-run"``, ``format_version = 1``) is built in memory and
+written by :mod:`stepnf.atomic`, so a crash or a full disk never leaves a
+half-written file and never destroys the previous one.
 """
 from __future__ import annotations
 
 import json
-import os
 import platform
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from . import atomic
 from .backbone import MethodResult, json_float
 from .errors import StoreError
 
@@ -117,58 +117,54 @@ def versions() -> dict[str, str]:
             "scipy": scipy.__version__, "h5py": h5py.__version__, "platform": platform.platform()}
 
 
-def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Path:
-    """Write the run atomically (temporary file in the same folder, then ``os.replace``)."""
-    import h5py
+RUN_FORMAT = "stepnf-run"
+RUN_FORMAT_VERSION = 1
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "stepnf-run"
-            f.attrs["format_version"] = 1
-            f.attrs["versions"] = json.dumps(versions())
-            f.attrs["json"] = result.to_json()
-            inp = f.create_group("inputs")
-            inp.attrs["scene_text"] = scene_text
-            inp.attrs["scene"] = json.dumps(result.scene, default=str)
-            inp.attrs["model"] = json.dumps(result.model, default=str)
-            f.create_group("counts").attrs.update({k: int(v) for k, v in result.counts.items()})
-            f.create_group("timings").attrs.update({k: float(v) for k, v in result.timings.items()})
-            sp = f.create_group("spectrum")
-            sp["omega"] = np.asarray(result.spectrum.get("omega", []), dtype=float)
-            sp.attrs["labels"] = json.dumps([label_json(x) for x in result.spectrum.get("labels", [])])
-            sp.attrs["n_rigid"] = int(result.spectrum.get("n_rigid", 0))
-            sp.attrs["degenerate_groups"] = json.dumps(result.spectrum.get("degenerate_groups", []))
-            modes = f.create_group("modes")
-            for m in result.modes:
-                g = modes.create_group(f"mode_{m.index}")
-                g.attrs["index"] = m.index
-                g.attrs["label"] = json.dumps(label_json(m.label))
-                g.attrs["omega"] = m.omega
-                if m.rho is not None and np.isfinite(m.rho):
-                    g.attrs["rho"] = m.rho
-                for meth, r in m.methods.items():
-                    mg = g.create_group(meth)
-                    mg["C"] = np.asarray(r.C, dtype=float)
-                    mg.attrs["T"] = r.T
-                    mg.attrs["order"] = r.order
-                    if r.gamma is not None:
-                        mg.attrs["gamma"] = r.gamma
-                    if r.T_error is not None:
-                        mg.attrs["T_error"] = r.T_error
-                    mg.attrs["flags"] = json.dumps(r.flags)
-            arr = f.create_group("arrays")
-            for k, v in result.arrays.items():
-                arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+
+def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Path:
+    """Write the run atomically (built in memory, then :func:`stepnf.atomic.write_bytes`).
+
+    Raises :class:`stepnf.errors.OutputError` (naming the file and the reason) if it cannot be
+    written; the previous file, if any, is then untouched and no temporary file is left.
+    """
+    def fill(f: Any) -> None:
+        f.attrs["versions"] = json.dumps(versions())
+        f.attrs["json"] = result.to_json()
+        inp = f.create_group("inputs")
+        inp.attrs["scene_text"] = scene_text
+        inp.attrs["scene"] = json.dumps(result.scene, default=str)
+        inp.attrs["model"] = json.dumps(result.model, default=str)
+        f.create_group("counts").attrs.update({k: int(v) for k, v in result.counts.items()})
+        f.create_group("timings").attrs.update({k: float(v) for k, v in result.timings.items()})
+        sp = f.create_group("spectrum")
+        sp["omega"] = np.asarray(result.spectrum.get("omega", []), dtype=float)
+        sp.attrs["labels"] = json.dumps([label_json(x) for x in result.spectrum.get("labels", [])])
+        sp.attrs["n_rigid"] = int(result.spectrum.get("n_rigid", 0))
+        sp.attrs["degenerate_groups"] = json.dumps(result.spectrum.get("degenerate_groups", []))
+        modes = f.create_group("modes")
+        for m in result.modes:
+            g = modes.create_group(f"mode_{m.index}")
+            g.attrs["index"] = m.index
+            g.attrs["label"] = json.dumps(label_json(m.label))
+            g.attrs["omega"] = m.omega
+            if m.rho is not None and np.isfinite(m.rho):
+                g.attrs["rho"] = m.rho
+            for meth, r in m.methods.items():
+                mg = g.create_group(meth)
+                mg["C"] = np.asarray(r.C, dtype=float)
+                mg.attrs["T"] = r.T
+                mg.attrs["order"] = r.order
+                if r.gamma is not None:
+                    mg.attrs["gamma"] = r.gamma
+                if r.T_error is not None:
+                    mg.attrs["T_error"] = r.T_error
+                mg.attrs["flags"] = json.dumps(r.flags)
+        arr = f.create_group("arrays")
+        for k, v in result.arrays.items():
+            arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)
+
+    return atomic.write_hdf5(path, fill, format=RUN_FORMAT, format_version=RUN_FORMAT_VERSION,
+                             what="results file")
 
 
 def read_hdf5(path: str | Path) -> dict[str, Any]:
@@ -178,8 +174,8 @@ def read_hdf5(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != "stepnf-run":
-                raise StoreError(f"{path}: not a stepnf run file (format attribute missing)")
+            atomic.check_format(f.attrs, path, format=RUN_FORMAT, version=RUN_FORMAT_VERSION,
+                                what="run file")
             doc = json.loads(f.attrs["json"])
             doc["arrays"] = {k: np.asarray(v) for k, v in f["arrays"].items()}
     except (OSError, KeyError) as exc:

@@ -28,6 +28,14 @@ units), ``relative_amplitude`` (fraction of the characteristic length),
 "tangent": G and h from the solver's tangent stiffness, for solvers that
 offer it and print few digits). ``[output]``: ``dir``,
 ``name`` (file stem, default the scene's), ``hdf5`` (bool), ``plot`` (bool).
+
+Every key is checked when the file is read, with its allowed range (the
+constants below give each range and its reason): a wrong type, a value out of
+range or a file that is not UTF-8 TOML is a :class:`~stepnf.errors.SceneError`
+naming the file and the key (exit code 2). :func:`check_number`,
+:func:`check_bool` and :func:`check_name` are the checks adapters reuse for
+their own ``[model]`` keys, and :func:`read_toml` reads every TOML file stepnf
+takes (scenes, sweeps).
 """
 from __future__ import annotations
 
@@ -90,24 +98,101 @@ class Scene:
         return str(self.file) if self.file else "<scene>"
 
 
-def _number(file, key, value, *, positive=False, nonneg=False, integer=False, lo=None, hi=None):
+#: A scene or sweep file is a few hundred bytes; anything this large is not one (and a device such
+#: as /dev/zero would otherwise be read for ever).
+MAX_FILE_BYTES = 4 * 2**20
+
+#: Ranges of the [analysis] numbers (reasons in the comments; the tolerances are relative, so above 1
+#: they can only be nonsense).
+MAX_MODES = 100_000        # eigenpairs: beyond this no FE eigensolver finishes in memory
+MAX_MODE_INDEX = MAX_MODES - 1
+MAX_LABEL = 1_000          # nodal diameters / circles of a (k, n) label
+MAX_MASTERS = 1_000        # master modes of one scene (each costs STEP evaluations)
+MAX_RIGID_MODES = 1_000    # a body has 6; 1000 allows many unconnected parts
+#: A STEP amplitude is a displacement in model length units: 1e-15 .. 1e15 covers nanometres in
+#: metres and kilometres in micrometres, and keeps q^3 (the cubic term) far inside float range.
+AMPLITUDE_RANGE = (1e-15, 1e15)
+#: relative_amplitude is a fraction of the characteristic length (a shell's thickness): below 1e-6
+#: the cubic part of f is lost in round-off (1e-12 of the linear part); above 100 thicknesses the
+#: field is no deformation a thin structure carries.
+RELATIVE_AMPLITUDE_RANGE = (1e-6, 100.0)
+#: check_ratio scales the second STEP amplitude; outside [1e-3, 1e3] the check measures round-off.
+CHECK_RATIO_RANGE = (1e-3, 1e3)
+
+
+def describe_value(value: Any) -> str:
+    """``value`` as a message shows it: its TOML spelling (shortened) and its kind."""
+    if isinstance(value, bool):
+        return f"{str(value).lower()} (a boolean)"
+    if isinstance(value, int):
+        text = str(value)
+        return text if len(text) <= 24 else f"an integer of {len(text)} digits ({text[:12]}...)"
+    if isinstance(value, float):
+        return repr(value)
+    kind = ("a string" if isinstance(value, str) else "a table" if isinstance(value, Mapping)
+            else "an array" if isinstance(value, list) else f"a {type(value).__name__}")
+    text = repr(value)
+    if len(text) > 60:
+        text = text[:57] + "..."
+    return f"{text} ({kind})"
+
+
+def _bound(x: float) -> str:
+    return str(x) if isinstance(x, int) else f"{x:g}"
+
+
+def interval(lo: float | None, hi: float | None, *, lo_open: bool = False, hi_open: bool = False) -> str:
+    """``[lo, hi]``, ``(lo, hi]``, ``>= lo``... as a message shows an allowed range."""
+    if lo is not None and hi is not None:
+        return f"{'(' if lo_open else '['}{_bound(lo)}, {_bound(hi)}{')' if hi_open else ']'}"
+    if lo is not None:
+        return f"{'>' if lo_open else '>='} {_bound(lo)}"
+    if hi is not None:
+        return f"{'<' if hi_open else '<='} {_bound(hi)}"
+    return "(any finite value)"
+
+
+def check_number(file: str | Path | None, key: str, value: Any, *, integer: bool = False,
+                 lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+                 hi_open: bool = False, why: str = "") -> int | float:
+    """``value`` if it is a number (an integer when ``integer``) in the range; else a SceneError.
+
+    Booleans, strings, tables, arrays, NaN and inf are refused; huge integers are compared
+    exactly (never converted to float first). ``why`` is appended to the message.
+    """
+    rng = interval(lo, hi, lo_open=lo_open, hi_open=hi_open)
     ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok_type:
-        raise SceneError(file, key, f"expected {'an integer' if integer else 'a number'}, got {value!r}")
-    if not math.isfinite(float(value)):
-        raise SceneError(file, key, f"expected a finite number, got {value!r}")
-    if positive and not value > 0:
-        raise SceneError(file, key, f"must be > 0, got {value!r}")
-    if nonneg and value < 0:
-        raise SceneError(file, key, f"must be >= 0, got {value!r}")
-    if lo is not None and value < lo or hi is not None and value > hi:
-        raise SceneError(file, key, f"must lie in [{lo}, {hi}], got {value!r}")
+    if isinstance(value, bool) or not ok_type or not (isinstance(value, int) or math.isfinite(value)):
+        what = ("an integer" if integer else "a finite number") + ("" if lo is None and hi is None else f" in {rng}")
+        raise SceneError(file, key, f"expected {what}{why}, got {describe_value(value)}")
+    if not ((lo is None or (value > lo if lo_open else value >= lo))
+            and (hi is None or (value < hi if hi_open else value <= hi))):
+        verb = "must lie in" if lo is not None and hi is not None else "must be"
+        raise SceneError(file, key, f"{verb} {rng}{why}, got {describe_value(value)}")
+    return value
+
+
+def check_bool(file: str | Path | None, key: str, value: Any) -> bool:
+    """``value`` if it is true or false; else a SceneError."""
+    if not isinstance(value, bool):
+        raise SceneError(file, key, f"expected true or false, got {describe_value(value)}")
+    return value
+
+
+def check_name(file: str | Path | None, key: str, value: Any) -> str:
+    """A file stem written into an output folder: no path separator, not '.', '..' or empty."""
+    bad = (not isinstance(value, str) or not value.strip() or value in (".", "..")
+           or any(c in value for c in "/\\") or any(ord(c) < 32 or ord(c) == 127 for c in value)
+           or len(value.encode("utf-8", "surrogatepass")) > 200)
+    if bad:
+        raise SceneError(file, key, "expected a file stem: a non-empty string of at most 200 bytes, without "
+                         f"'/', '\\', control characters, and not '.' or '..'; got {describe_value(value)}")
     return value
 
 
 def _choice(file, key, value, choices):
-    if value not in choices:
-        raise SceneError(file, key, f"got {value!r}; allowed values: {allowed(choices)}")
+    if isinstance(value, (list, Mapping)) or value not in choices:
+        raise SceneError(file, key, f"got {describe_value(value)}; allowed values: {allowed(choices)}")
     return value
 
 
@@ -118,17 +203,44 @@ def _unknown(file, table: str, data: Mapping, keys) -> None:
                              f"unknown key; allowed keys of [{table or 'top level'}]: {allowed(keys)}")
 
 
+def read_toml(path: str | Path, what: str = "scene") -> tuple[dict[str, Any], str]:
+    """The table and the text of a TOML file; a SceneError naming the file for anything else.
+
+    Refused: unreadable or non-regular files, files over :data:`MAX_FILE_BYTES`, text that is
+    not UTF-8 (Latin-1, UTF-16, binary), invalid or absurdly nested TOML. A UTF-8 byte-order
+    mark is allowed.
+    """
+    path = Path(path)
+    need = f"a {what} file must be UTF-8 encoded TOML"
+    try:
+        if path.exists() and not path.is_file():
+            raise SceneError(path, None, f"not a regular file; {need}")
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise SceneError(path, None, f"cannot read the {what} file: {exc.strerror or exc}") from exc
+    if len(raw) > MAX_FILE_BYTES:
+        raise SceneError(path, None, f"larger than {MAX_FILE_BYTES // 2**20} MiB; {need} of a few lines")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(path, None, f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}; "
+                         f"Latin-1, UTF-16 or binary?); {need}") from exc
+    if "\x00" in text:
+        raise SceneError(path, None, f"contains NUL bytes (UTF-16 or binary?); {need}")
+    text = text.removeprefix("\ufeff")
+    try:
+        return tomllib.loads(text), text
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(path, None, f"not valid TOML: {exc}") from exc
+    except RecursionError as exc:
+        raise SceneError(path, None, "not valid TOML: arrays or tables nested too deeply") from exc
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file; errors name the file, the key and what is allowed."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise SceneError(path, None, f"cannot read the scene file: {exc.strerror or exc}") from exc
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(path, None, f"not valid TOML: {exc}") from exc
+    data, text = read_toml(path, "scene")
     return parse_scene(data, file=path.resolve(), base_dir=path.resolve().parent, text=text)
 
 
@@ -136,110 +248,151 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
                 text: str = "") -> Scene:
     """Validate a scene given as a mapping (what ``tomllib`` returns)."""
     f = file
+    if not isinstance(data, Mapping):
+        raise SceneError(f, None, f"expected a TOML document (a table), got {describe_value(data)}")
     _unknown(f, "", data, TOP_KEYS)
     model = data.get("model")
     if not isinstance(model, Mapping):
-        raise SceneError(f, "model", "missing table [model] (with at least solver = \"<name>\")")
+        raise SceneError(f, "model", "missing table [model] (with at least solver = \"<name>\")" if model is None
+                         else f"expected a table [model], got {describe_value(model)}")
     solver = model.get("solver")
-    if not isinstance(solver, str) or not solver:
-        raise SceneError(f, "model.solver", "missing or not a string; give an installed solver name "
-                         "(list them with `stepnf solvers`)")
+    if not isinstance(solver, str) or not solver.strip():
+        raise SceneError(f, "model.solver", f"missing or not a string (got {describe_value(solver)}); give an "
+                         "installed solver name (list them with `stepnf solvers`)")
     an = data.get("analysis")
     if not isinstance(an, Mapping):
-        raise SceneError(f, "analysis", "missing table [analysis] (master_modes, methods, ...)")
+        raise SceneError(f, "analysis", "missing table [analysis] (master_modes, methods, ...)" if an is None
+                         else f"expected a table [analysis], got {describe_value(an)}")
     _unknown(f, "analysis", an, ANALYSIS_KEYS)
+    sc = Scene(solver=solver, model={k: v for k, v in model.items() if k != "solver"},
+               master_modes=_masters(f, an.get("master_modes")),
+               methods=_methods(f, an.get("methods", ["nf", "dnf", "md", "smd"])), file=file,
+               base_dir=base_dir or Path("."), text=text)
+    _analysis(f, an, sc)
+    sc.step = _step(f, an.get("step", {}))
+    _output(f, data.get("output", {}), sc)
+    return sc
 
-    masters = an.get("master_modes")
-    if not isinstance(masters, list) or not masters:
-        raise SceneError(f, "analysis.master_modes", "expected a non-empty list of elastic-mode indices "
-                         "(0-based, rigid modes excluded) or labels such as \"(2,0)\"")
+
+def _masters(f, masters: Any) -> list[int | str]:
+    """``analysis.master_modes``: 0-based indices or ``"(k,n)"`` labels, no repeats."""
+    key = "analysis.master_modes"
+    if not isinstance(masters, list) or not masters or len(masters) > MAX_MASTERS:
+        raise SceneError(f, key, f"expected a non-empty list (at most {MAX_MASTERS}) of elastic-mode indices "
+                         f"(0-based, rigid modes excluded) or labels such as \"(2,0)\", got {describe_value(masters)}")
     for i, m in enumerate(masters):
         if isinstance(m, bool) or not isinstance(m, (int, str)):
-            raise SceneError(f, f"analysis.master_modes[{i}]", f"expected an integer or a label, got {m!r}")
-        if isinstance(m, int) and m < 0:
-            raise SceneError(f, f"analysis.master_modes[{i}]", f"mode indices start at 0, got {m}")
-        if isinstance(m, str) and parse_label(m) is None and (not m.strip() or m.strip().startswith("(")):
-            raise SceneError(f, f"analysis.master_modes[{i}]",
-                             f"{m!r} is not a label: write (k, n) labels as \"(2,0)\" (k nodal diameters, "
-                             "n nodal circles), or give a 0-based mode index")
+            raise SceneError(f, f"{key}[{i}]", f"expected an integer or a label, got {describe_value(m)}")
+        if isinstance(m, int):
+            check_number(f, f"{key}[{i}]", m, integer=True, lo=0, hi=MAX_MODE_INDEX,
+                         why=" (mode indices start at 0, rigid modes excluded)")
+        else:
+            _label(f, f"{key}[{i}]", m)
     if len(set(map(str, masters))) != len(masters):
-        raise SceneError(f, "analysis.master_modes", f"repeated master modes in {masters}")
+        raise SceneError(f, key, f"repeated master modes in {masters}")
+    return list(masters)
 
-    methods = an.get("methods", ["nf", "dnf", "md", "smd"])
+
+def _label(f, key: str, m: str) -> None:
+    """A master mode given as text: a ``(k, n)`` label with k, n <= :data:`MAX_LABEL`, or an adapter's name."""
+    lab = parse_label(m)
+    if lab is None and (not m.strip() or m.strip().startswith("(") or len(m) > 200):
+        raise SceneError(f, key, f"{describe_value(m)} is not a label: write (k, n) labels as \"(2,0)\" "
+                         "(k nodal diameters, n nodal circles), or give a 0-based mode index")
+    if lab is not None and max(lab) > MAX_LABEL:
+        raise SceneError(f, key, f"label {m!r}: k and n must lie in [0, {MAX_LABEL}]")
+
+
+def _methods(f, methods: Any) -> list[str]:
+    key = "analysis.methods"
     if not isinstance(methods, list) or not methods:
-        raise SceneError(f, "analysis.methods", f"expected a non-empty list from {allowed(METHODS)}")
+        raise SceneError(f, key, f"expected a non-empty list from {allowed(METHODS)}, got {describe_value(methods)}")
     for i, m in enumerate(methods):
-        _choice(f, f"analysis.methods[{i}]", m, METHODS)
+        _choice(f, f"{key}[{i}]", m, METHODS)
     if len(set(methods)) != len(methods):
-        raise SceneError(f, "analysis.methods", f"repeated methods in {methods}")
+        raise SceneError(f, key, f"repeated methods in {methods}")
+    return list(methods)
 
-    sc = Scene(solver=solver, model={k: v for k, v in model.items() if k != "solver"},
-               master_modes=list(masters), methods=list(methods), file=file,
-               base_dir=base_dir or Path("."), text=text)
+
+#: Relative tolerances of [analysis]: (scene key, Scene attribute or Tolerances field, upper bound).
+#: rigid_tolerance compares |w^2| with the eigenvalue scale: at 1 every mode would be rigid.
+_TOLERANCES = (("rigid_tolerance", "rigid_tolerance", 1.0), ("degeneracy_tolerance", "degeneracy_tolerance", 1.0),
+               ("resonance_tolerance", "resonance", 1.0), ("coupling_tolerance", "coupling", 1.0))
+
+
+def _analysis(f, an: Mapping[str, Any], sc: Scene) -> None:
+    """The optional scalar keys of ``[analysis]`` (everything but master_modes, methods, step)."""
     if "retained_modes" in an:
-        sc.retained_modes = _number(f, "analysis.retained_modes", an["retained_modes"], integer=True, lo=1)
+        sc.retained_modes = check_number(f, "analysis.retained_modes", an["retained_modes"], integer=True,
+                                         lo=1, hi=MAX_MODES)
     if "qm_order" in an:
         sc.qm_order = _choice(f, "analysis.qm_order", an["qm_order"], ("full", "modal"))
     if "tensors" in an:
         sc.tensors = _choice(f, "analysis.tensors", an["tensors"], ("targeted", "full"))
     if "rigid_modes" in an and an["rigid_modes"] != "auto":
-        sc.rigid_modes = _number(f, "analysis.rigid_modes", an["rigid_modes"], integer=True, lo=0)
-    for key, attr in (("rigid_tolerance", "rigid_tolerance"), ("degeneracy_tolerance", "degeneracy_tolerance")):
-        if key in an:
-            setattr(sc, attr, float(_number(f, f"analysis.{key}", an[key], positive=True)))
+        sc.rigid_modes = check_number(f, "analysis.rigid_modes", an["rigid_modes"], integer=True, lo=0,
+                                      hi=MAX_RIGID_MODES, why=' (or "auto")')
     tol = {}
-    for key, attr in (("resonance_tolerance", "resonance"), ("coupling_tolerance", "coupling")):
+    for key, attr, hi in _TOLERANCES:
         if key in an:
-            tol[attr] = float(_number(f, f"analysis.{key}", an[key], positive=True))
+            v = float(check_number(f, f"analysis.{key}", an[key], lo=0, hi=hi, lo_open=True,
+                                   why=" (a relative tolerance)"))
+            if hasattr(sc, attr):
+                setattr(sc, attr, v)
+            else:
+                tol[attr] = v
     sc.tolerances = Tolerances(**tol)
     if "linear_solver" in an:
         sc.linear_solver = _choice(f, "analysis.linear_solver", an["linear_solver"], BACKENDS)
     if "deflation" in an:
-        if not isinstance(an["deflation"], bool):
-            raise SceneError(f, "analysis.deflation", f"expected true or false, got {an['deflation']!r}")
-        sc.deflation = an["deflation"]
+        sc.deflation = check_bool(f, "analysis.deflation", an["deflation"])
     if "max_modes" in an:
-        sc.max_modes = _number(f, "analysis.max_modes", an["max_modes"], integer=True, lo=2)
-    step = an.get("step", {})
+        sc.max_modes = check_number(f, "analysis.max_modes", an["max_modes"], integer=True, lo=2, hi=MAX_MODES)
+
+
+def _step(f, step: Any) -> StepPolicy:
+    """``[analysis.step]``: the STEP amplitude policy."""
     if not isinstance(step, Mapping):
-        raise SceneError(f, "analysis.step", "expected a table [analysis.step]")
+        raise SceneError(f, "analysis.step", f"expected a table [analysis.step], got {describe_value(step)}")
     _unknown(f, "analysis.step", step, STEP_KEYS)
     kw: dict[str, Any] = {}
     if "amplitude" in step and step["amplitude"] != "auto":
-        kw["amplitude"] = float(_number(f, "analysis.step.amplitude", step["amplitude"], positive=True))
+        lo, hi = AMPLITUDE_RANGE
+        kw["amplitude"] = float(check_number(f, "analysis.step.amplitude", step["amplitude"], lo=lo, hi=hi,
+                                             why=' (a length in model units, or "auto")'))
     if "relative_amplitude" in step:
-        kw["relative_amplitude"] = float(_number(f, "analysis.step.relative_amplitude",
-                                                 step["relative_amplitude"], positive=True))
+        lo, hi = RELATIVE_AMPLITUDE_RANGE
+        kw["relative_amplitude"] = float(check_number(f, "analysis.step.relative_amplitude",
+                                                      step["relative_amplitude"], lo=lo, hi=hi,
+                                                      why=" (a fraction of the characteristic length)"))
     if "check" in step:
-        if not isinstance(step["check"], bool):
-            raise SceneError(f, "analysis.step.check", f"expected true or false, got {step['check']!r}")
-        kw["check"] = step["check"]
+        kw["check"] = check_bool(f, "analysis.step.check", step["check"])
     if "check_ratio" in step:
-        r = float(_number(f, "analysis.step.check_ratio", step["check_ratio"], positive=True))
+        lo, hi = CHECK_RATIO_RANGE
+        r = float(check_number(f, "analysis.step.check_ratio", step["check_ratio"], lo=lo, hi=hi))
         if r == 1.0:
             raise SceneError(f, "analysis.step.check_ratio", "must differ from 1 (the check needs a second amplitude)")
         kw["check_ratio"] = r
     if "tolerance" in step:
-        kw["tolerance"] = float(_number(f, "analysis.step.tolerance", step["tolerance"], positive=True))
+        kw["tolerance"] = float(check_number(f, "analysis.step.tolerance", step["tolerance"], lo=0, hi=1.0,
+                                             lo_open=True, why=" (a relative error)"))
     if "method" in step:
         kw["method"] = _choice(f, "analysis.step.method", step["method"], STEP_METHODS)
-    sc.step = StepPolicy(**kw)
+    return StepPolicy(**kw)
 
-    out = data.get("output", {})
+
+def _output(f, out: Any, sc: Scene) -> None:
+    """``[output]``: folder, file stem, what to write."""
     if not isinstance(out, Mapping):
-        raise SceneError(f, "output", "expected a table [output]")
+        raise SceneError(f, "output", f"expected a table [output], got {describe_value(out)}")
     _unknown(f, "output", out, OUTPUT_KEYS)
     d = out.get("dir", "results")
-    if not isinstance(d, str) or not d:
-        raise SceneError(f, "output.dir", f"expected a folder path, got {d!r}")
+    if not isinstance(d, str) or not d.strip() or "\x00" in d or len(d) > 4096:
+        raise SceneError(f, "output.dir", f"expected a folder path (a non-empty string without NUL, at most "
+                         f"4096 characters), got {describe_value(d)}")
     sc.output_dir = Path(d) if Path(d).is_absolute() else sc.base_dir / d
-    name = out.get("name", file.stem if file else "stepnf")
-    if not isinstance(name, str) or not name or "/" in name:
-        raise SceneError(f, "output.name", f"expected a file stem without '/', got {name!r}")
-    sc.output_name = name
+    # the default, the scene's own file stem, has no '/' and stays inside the folder
+    sc.output_name = check_name(f, "output.name", out["name"]) if "name" in out else (f.stem if f else "stepnf")
     for key, attr in (("hdf5", "write_hdf5"), ("plot", "plot")):
         if key in out:
-            if not isinstance(out[key], bool):
-                raise SceneError(f, f"output.{key}", f"expected true or false, got {out[key]!r}")
-            setattr(sc, attr, out[key])
-    return sc
+            setattr(sc, attr, check_bool(f, f"output.{key}", out[key]))

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -207,13 +207,18 @@ def targeted_steps_tangent(tangent: Callable[[np.ndarray], sp.spmatrix], K: sp.s
     (CalculiX: 14 against 7), this sharpens G and h by orders of magnitude.
     Two tangents per master mode (four with the check amplitude).
     """
+    from .adapter import checked_matrix
+
+    owner = getattr(tangent, "__self__", tangent)
     out = []
     modes = list(range(Phi.shape[1])) if modes is None else list(modes)
     for j, p in enumerate(modes):
         phi, qj = Phi[:, j], float(q[j])
 
         def gh(a: float) -> tuple[np.ndarray, float]:
-            Kp, Km = tangent(a * phi), tangent(-a * phi)
+            # the adapter's tangents enter here: real, (n, n), finite and symmetric, else AdapterError
+            Kp, Km = (checked_matrix(tangent(s * phi), "K_T", owner, K.shape[0])
+                      for s in (a, -a))
             if counters is not None:
                 counters.tangent_evaluations += 2
             Gv = (Kp - Km) @ phi / (4.0 * a)
@@ -259,16 +264,23 @@ class FullStep:
     h: np.ndarray
     error: float = 0.0
     flags: list[dict] = field(default_factory=list)
+    g_norm2: dict[int, float] = field(default_factory=dict)  # column j -> norm2(G(phi_j, phi_j)), see full_step
 
 
 def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.ndarray,
               policy: StepPolicy, modes: np.ndarray | None = None,
-              progress: Callable[[int, int], None] | None = None) -> FullStep:
+              progress: Callable[[int, int], None] | None = None,
+              norm2: Callable[[np.ndarray], float] | None = None,
+              norm_columns: Sequence[int] = ()) -> FullStep:
     """Full STEP plan on the columns of ``Phi`` (n_dof, n) with per-mode amplitudes ``q`` (n,).
 
     The combinations use scaled modes ``v_j = q_j phi_j``; every force is
     projected on the modes at once, so memory stays O(n^3) whatever the
-    model size.
+    model size. With ``norm2`` (a squared norm of a force vector, e.g. the
+    ``M^-1`` norm), ``FullStep.g_norm2[j]`` is ``norm2(G(phi_j, phi_j))`` for
+    each ``j`` in ``norm_columns``, measured on the whole vector before its
+    projection (what the modal truncation check needs), at no extra force
+    evaluation.
     """
     n = Phi.shape[1]
     V = Phi * q  # scaled modes
@@ -286,14 +298,25 @@ def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.nda
     for j, k, l in triples:
         U_rows.append(V[:, j] + V[:, k] + V[:, l])
     total = len(U_rows)
-    P = np.empty((total, n))  # forces projected on the modes
-    chunk = max(1, forces.batch_size)
+    P = np.empty((total, n + 1))  # forces projected on the modes; last column: norm2 of G(v_j, v_j)
+    chunk = max(2, forces.batch_size + forces.batch_size % 2)  # even: the pair +-v_j stays in one chunk
+    wanted = {2 * j for j in norm_columns}
+
+    def reduce(F: np.ndarray, start: int) -> np.ndarray:
+        extra = np.zeros(len(F))
+        for r in range(0, len(F) - 1, 2):
+            if norm2 is not None and start + r in wanted:  # rows +v_j, -v_j: G(v_j, v_j) = (f+ + f-) / 2
+                extra[r] = norm2((F[r] + F[r + 1]) / 2.0)
+        return np.column_stack([F @ proj.T, extra])
+
     for i in range(0, total, chunk):  # a plan of its own per block, so progress can be shown
         P[i:i + chunk] = forces(np.stack(U_rows[i:i + chunk]), plan=f"full{i // chunk:05d}",
-                                reduce=lambda F: F @ proj.T)
+                                reduce=lambda F, i=i: reduce(F, i))
         if progress:
             progress(min(i + chunk, total), total)
     del U_rows
+    g_norm2 = {j: float(P[2 * j, n]) / q[j] ** 4 for j in norm_columns}
+    P = P[:, :n]
     KVp = (proj @ KV)  # (n, n): modal linear forces of scaled modes
     G2 = np.zeros((n, n, n))  # projected G(v_j, v_k)
     H3 = np.zeros((n, n, n, n))  # projected H(v_j, v_k, v_l)
@@ -336,7 +359,7 @@ def full_step(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.nda
     # undo the amplitude scaling: G(v_j, v_k) = q_j q_k G(phi_j, phi_k)
     g = G2 / (q[None, :, None] * q[None, None, :])
     h = H3 / (q[None, :, None, None] * q[None, None, :, None] * q[None, None, None, :])
-    res = FullStep(modes=np.arange(n) if modes is None else np.asarray(modes), q=q, g=g, h=h)
+    res = FullStep(modes=np.arange(n) if modes is None else np.asarray(modes), q=q, g=g, h=h, g_norm2=g_norm2)
     if policy.check:
         q2 = policy.check_ratio * q
         V2 = Phi * q2

@@ -17,33 +17,51 @@ cartesian product), or lists scenes::
     [output]
     dir = "results"
 
+Every key is checked when the file is read (:func:`load_sweep`): its type, its range
+(``n_workers`` in [1, 1024], ``threads_per_worker`` in [1, 256], at most 10 000 cases),
+``name`` a plain file stem (no path separator, not ``..``), and every case as a scene; anything
+else is a :class:`~stepnf.errors.SceneError` naming the sweep file and the key, before a worker
+starts or the store is touched.
+
 ``stepnf sweep FILE`` runs every case not yet stored. The store is one HDF5
 file with one group per case (``/cases/<id>``: status ``done`` or ``failed``,
-the parameters, the case's JSON result or its error). Only this process (the
-client) writes it, and every write goes to a copy that then replaces the file
-(``os.replace``), so a killed sweep leaves the previous, complete store: a
+the parameters, the case's JSON result or its error; root attributes
+``format = "stepnf-sweep"``, ``format_version = 1``; stores without a version,
+written by earlier stepnf, are read as version 1). Only this process (the
+client) writes it, and every write builds the new store in memory and writes
+it atomically (:mod:`stepnf.atomic`), so a killed sweep or a full disk leaves
+the previous, complete store: a
 rerun resumes where it stopped and never recomputes a stored case (failed
 cases are retried only with ``--retry-failed``).
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import itertools
 import json
 import logging
 import os
-import shutil
-import tempfile
+import re
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from .errors import SceneError, StoreError, allowed
 
+TOP_KEYS = ("sweep", "output")
 SWEEP_KEYS = ("name", "base", "vary", "scenes", "dask")
 DASK_KEYS = ("scheduler", "n_workers", "threads_per_worker")
+OUTPUT_KEYS = ("dir",)
+#: Bounds of a sweep file: a sweep stores every case in one HDF5 file rewritten per case, so tens of
+#: thousands of cases are already a store of gigabytes written quadratically; a local cluster of more
+#: than 1024 processes, or a worker of more than 256 threads, exceeds any single machine.
+MAX_CASES = 10_000
+MAX_WORKERS = 1024
+MAX_THREADS = 256
+#: A dask.distributed address: "protocol://host:port", "host:port" (or a path after "inproc://").
+_ADDRESS = re.compile(r"^([a-z][a-z0-9+.-]*://)?[^\s/][^\s]*$")
 
 
 @dataclass
@@ -79,79 +97,178 @@ def _set(data: dict, dotted: str, value: Any) -> None:
 
 
 def _fmt(v: Any) -> str:
-    return f"{v:g}" if isinstance(v, float) else str(v)
+    # "/" separates HDF5 groups and the id names the case's group in the store: spell it %2F
+    return (f"{v:g}" if isinstance(v, float) else str(v)).replace("%", "%25").replace("/", "%2F")
 
 
 def load_sweep(path: str | Path) -> Sweep:
-    """Read a sweep file and expand its cases (each validated as a scene)."""
-    from .scene import parse_scene
+    """Read a sweep file, check every key and expand its cases (each validated as a scene).
+
+    Anything malformed is a :class:`SceneError` naming the sweep file and the key (exit code 2)
+    before a worker starts or the store is touched.
+    """
+    from .scene import check_name, read_toml
 
     path = Path(path).resolve()
-    try:
-        raw = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise SceneError(path, None, f"cannot read the sweep file: {exc.strerror or exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(path, None, f"not valid TOML: {exc}") from exc
+    raw, _ = read_toml(path, "sweep")
+    for k in raw:
+        if k not in TOP_KEYS:
+            raise SceneError(path, k, f"unknown table; a sweep file holds {allowed(TOP_KEYS)}")
     sw = raw.get("sweep")
     if not isinstance(sw, Mapping):
         raise SceneError(path, "sweep", "missing table [sweep] (with base + vary, or scenes)")
     for k in sw:
         if k not in SWEEP_KEYS:
             raise SceneError(path, f"sweep.{k}", f"unknown key; allowed keys: {allowed(SWEEP_KEYS)}")
-    name = sw.get("name", path.stem)
-    cases: list[Case] = []
-    if "scenes" in sw:
-        if "base" in sw or "vary" in sw:
-            raise SceneError(path, "sweep.scenes", "give either scenes or base + vary, not both")
-        for i, s in enumerate(sw["scenes"]):
-            sp = (path.parent / s).resolve()
+    name = check_name(path, "sweep.name", sw["name"]) if "name" in sw else path.stem  # a stem has no '/'
+    cases = _listed_cases(path, sw) if "scenes" in sw else _varied_cases(path, sw)
+    ids = [c.id for c in cases]
+    if len(set(ids)) != len(ids):
+        twice = sorted({i for i in ids if ids.count(i) > 1})
+        raise SceneError(path, "sweep", f"two cases have the same id {twice[0]!r} (the same parameters, as "
+                         "shown with 6 significant digits, or two scenes with the same file name)")
+    store = _output_dir(path, raw.get("output", {})) / f"{name}.h5"
+    scheduler, n_workers, threads = _dask(path, sw.get("dask", {}))
+    return Sweep(name, cases, store, scheduler, n_workers, threads, path)
+
+
+def _text(path: Path, key: str, value: Any, what: str) -> str:
+    """A non-empty string without NUL (a file name, an address)."""
+    if not isinstance(value, str) or not value.strip() or "\x00" in value or len(value) > 4096:
+        raise SceneError(path, key, f"expected {what} (a non-empty string), got {_shown(value)}")
+    return value
+
+
+def _shown(value: Any) -> str:
+    from .scene import describe_value
+
+    return describe_value(value)
+
+
+def _read_scene(path: Path, key: str, name: Any) -> tuple[Path, dict[str, Any]]:
+    """The scene file ``name`` (relative to the sweep file), read as TOML; errors name ``key``."""
+    from .scene import read_toml
+
+    sp = (path.parent / _text(path, key, name, "a scene file name")).resolve()
+    try:
+        return sp, read_toml(sp, "scene")[0]
+    except SceneError as exc:
+        raise SceneError(path, key, f"cannot use the scene: {exc}") from exc
+
+
+def _check_case(path: Path, key: str, case: Case) -> Case:
+    """Validate the case's scene now (fail early, before any worker starts)."""
+    from .scene import parse_scene
+
+    if case.id in ("", ".", "..") or len(case.id.encode("utf-8", "surrogatepass")) > 1000:
+        raise SceneError(path, key, f"case id {case.id!r} cannot name a group of the store; rename the scene "
+                         "or shorten the values")
+    try:
+        parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir))
+    except SceneError as exc:
+        raise SceneError(path, key, f"case {case.id}: {exc}") from exc
+    return case
+
+
+def _listed_cases(path: Path, sw: Mapping[str, Any]) -> list[Case]:
+    """``scenes = [...]``: one case per scene file."""
+    if "base" in sw or "vary" in sw:
+        raise SceneError(path, "sweep.scenes", "give either scenes or base + vary, not both")
+    scenes = sw["scenes"]
+    if not isinstance(scenes, list) or not scenes or len(scenes) > MAX_CASES:
+        raise SceneError(path, "sweep.scenes", f"expected a non-empty list (at most {MAX_CASES}) of scene file "
+                         f"names, relative to the sweep file; got {_shown(scenes)}")
+    cases = []
+    for i, s in enumerate(scenes):
+        sp, data = _read_scene(path, f"sweep.scenes[{i}]", s)
+        case = Case(sp.stem, {"scene": str(sp)}, data, str(sp), str(sp.parent))
+        cases.append(_check_case(path, f"sweep.scenes[{i}]", case))
+    return cases
+
+
+def _vary(path: Path, vary: Any) -> dict[str, list]:
+    """``[sweep.vary]``: dotted scene keys -> non-empty lists, at most :data:`MAX_CASES` combinations."""
+    if not isinstance(vary, Mapping):
+        raise SceneError(path, "sweep.vary", f"expected a table of dotted scene keys -> non-empty lists, "
+                         f"got {_shown(vary)}")
+    n = 1
+    for k, v in vary.items():
+        parts = k.split(".")
+        if parts[0] not in ("model", "analysis", "output") or len(parts) < 2 or not all(p.strip() for p in parts):
+            raise SceneError(path, f"sweep.vary.{k}", "expected a dotted scene key such as "
+                             "\"model.geometry.R\" (starting with model, analysis or output)")
+        if not isinstance(v, list) or not v:
+            raise SceneError(path, f"sweep.vary.{k}", f"expected a non-empty list of values, got {_shown(v)}")
+        n *= len(v)
+    if n > MAX_CASES:
+        raise SceneError(path, "sweep.vary", f"{n} combinations; a sweep may have at most {MAX_CASES} cases")
+    return dict(vary)
+
+
+def _varied_cases(path: Path, sw: Mapping[str, Any]) -> list[Case]:
+    """``base`` + ``[sweep.vary]``: the cartesian product of the varied values."""
+    if "base" not in sw:
+        raise SceneError(path, "sweep.base", "missing: the base scene the parameters vary (or give scenes = [...])")
+    bp, base = _read_scene(path, "sweep.base", sw["base"])
+    vary = _vary(path, sw.get("vary", {}))
+    keys = list(vary)
+    cases = []
+    for values in itertools.product(*(vary[k] for k in keys)):
+        data = copy.deepcopy(base)
+        params = dict(zip(keys, values))
+        for k, v in params.items():
             try:
-                data = tomllib.loads(sp.read_text())
-            except (OSError, tomllib.TOMLDecodeError) as exc:
-                raise SceneError(path, f"sweep.scenes[{i}]", f"cannot read scene {sp}: {exc}") from exc
-            cases.append(Case(sp.stem, {"scene": str(sp)}, data, str(sp), str(sp.parent)))
-    else:
-        if "base" not in sw:
-            raise SceneError(path, "sweep.base", "missing: the base scene the parameters vary")
-        bp = (path.parent / sw["base"]).resolve()
-        try:
-            base = tomllib.loads(bp.read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise SceneError(path, "sweep.base", f"cannot read the base scene {bp}: {exc}") from exc
-        vary = sw.get("vary", {})
-        if not isinstance(vary, Mapping) or not all(isinstance(v, list) and v for v in vary.values()):
-            raise SceneError(path, "sweep.vary", "expected a table of dotted scene keys -> non-empty lists")
-        keys = list(vary)
-        for values in itertools.product(*(vary[k] for k in keys)):
-            data = copy.deepcopy(base)
-            params = dict(zip(keys, values))
-            for k, v in params.items():
-                try:
-                    _set(data, k, v)
-                except KeyError:
-                    raise SceneError(path, f"sweep.vary.{k}", "this key crosses a value that is not a table")
-            cid = "_".join(f"{k.split('.')[-1]}={_fmt(v)}" for k, v in params.items()) or "base"
-            cases.append(Case(cid, params, data, str(bp), str(bp.parent)))
-    if len({c.id for c in cases}) != len(cases):
-        raise SceneError(path, "sweep", "two cases have the same parameters")
-    for c in cases:  # fail early, before any worker starts
-        try:
-            parse_scene(c.data, file=Path(c.file), base_dir=Path(c.base_dir))
-        except SceneError as exc:
-            raise SceneError(path, "sweep", f"case {c.id}: {exc}") from exc
-    out = raw.get("output", {})
-    d = Path(out.get("dir", "results"))
-    store = (d if d.is_absolute() else path.parent / d) / f"{name}.h5"
-    dk = sw.get("dask", {})
+                _set(data, k, v)
+            except KeyError:
+                raise SceneError(path, f"sweep.vary.{k}", "this key crosses a value that is not a table") from None
+        cid = "_".join(f"{k.split('.')[-1]}={_fmt(v)}" for k, v in params.items()) or "base"
+        cases.append(_check_case(path, "sweep.vary" if keys else "sweep.base",
+                                 Case(cid, params, data, str(bp), str(bp.parent))))
+    return cases
+
+
+def _output_dir(path: Path, out: Any) -> Path:
+    """``[output] dir`` (relative to the sweep file), the folder of the store."""
+    if not isinstance(out, Mapping):
+        raise SceneError(path, "output", f"expected a table [output] with dir, got {_shown(out)}")
+    for k in out:
+        if k not in OUTPUT_KEYS:
+            raise SceneError(path, f"output.{k}", f"unknown key; allowed keys of a sweep's [output]: "
+                             f"{allowed(OUTPUT_KEYS)}")
+    d = Path(_text(path, "output.dir", out.get("dir", "results"), "a folder path"))
+    return d if d.is_absolute() else path.parent / d
+
+
+def _dask(path: Path, dk: Any) -> tuple[str | None, int | None, int]:
+    """``[sweep.dask]``: ``(scheduler, n_workers, threads_per_worker)``, each checked."""
+    from .scene import check_number
+
+    if not isinstance(dk, Mapping):
+        raise SceneError(path, "sweep.dask", f"expected a table [sweep.dask], got {_shown(dk)}")
     for k in dk:
         if k not in DASK_KEYS:
             raise SceneError(path, f"sweep.dask.{k}", f"unknown key; allowed keys: {allowed(DASK_KEYS)}")
-    return Sweep(name, cases, store, dk.get("scheduler"), dk.get("n_workers"),
-                 int(dk.get("threads_per_worker", 1)), path)
+    scheduler = None
+    if "scheduler" in dk:
+        scheduler = _text(path, "sweep.dask.scheduler", dk["scheduler"], "a scheduler address such as "
+                          "\"tcp://10.0.0.5:8786\"")
+        if not _ADDRESS.match(scheduler):
+            raise SceneError(path, "sweep.dask.scheduler", f"expected an address such as \"tcp://10.0.0.5:8786\" "
+                             f"or \"10.0.0.5:8786\", got {scheduler!r}")
+    n_workers = None
+    if "n_workers" in dk:
+        n_workers = int(check_number(path, "sweep.dask.n_workers", dk["n_workers"], integer=True, lo=1,
+                                     hi=MAX_WORKERS, why=" (worker processes of the local cluster)"))
+    threads = int(check_number(path, "sweep.dask.threads_per_worker", dk.get("threads_per_worker", 1),
+                               integer=True, lo=1, hi=MAX_THREADS))
+    return scheduler, n_workers, threads
 
 
 # ------------------------------------------------------------------ the store
+STORE_FORMAT = "stepnf-sweep"
+STORE_FORMAT_VERSION = 1  # stores written before versions existed have the same layout
+
+
 def read_store(path: str | Path) -> dict[str, dict[str, Any]]:
     """Stored cases by id: ``{"status", "params", "result" (dict) or "error", "elapsed"}``."""
     import h5py
@@ -162,9 +279,7 @@ def read_store(path: str | Path) -> dict[str, dict[str, Any]]:
     out: dict[str, dict[str, Any]] = {}
     try:
         with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != "stepnf-sweep":
-                raise StoreError(f"{path}: not a stepnf sweep store; move it away or choose another "
-                                 "[output] dir / [sweep] name")
+            _check_store(f, path)
             for cid, g in f.get("cases", {}).items():
                 rec = {k: g.attrs[k] for k in g.attrs}
                 for k in ("params", "result"):
@@ -177,34 +292,79 @@ def read_store(path: str | Path) -> dict[str, dict[str, Any]]:
     return out
 
 
-def write_case(path: Path, case_id: str, record: Mapping[str, Any], sweep_info: Mapping[str, Any]) -> None:
-    """Add one case to the store safely: write a copy, then replace the file."""
-    import h5py
+def _check_store(f: Any, path: Path) -> int:
+    from .atomic import check_format
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
     try:
-        if path.exists():
-            shutil.copyfile(path, tmp)
-            mode = "a"
-        else:
-            mode = "w"
-        with h5py.File(tmp, mode) as f:
-            f.attrs["format"] = "stepnf-sweep"
-            f.attrs["sweep"] = json.dumps(sweep_info, default=str)
-            cases = f.require_group("cases")
-            if case_id in cases:
-                del cases[case_id]
-            g = cases.create_group(case_id)
-            for k, v in record.items():
-                g.attrs[k] = json.dumps(v, default=str) if isinstance(v, (dict, list)) else v
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        return check_format(f.attrs, path, format=STORE_FORMAT, version=STORE_FORMAT_VERSION, what="sweep store")
+    except StoreError as exc:
+        if "not a stepnf" in str(exc):
+            raise StoreError(f"{exc}; move it away or choose another [output] dir / [sweep] name") from None
+        raise
+
+
+def write_case(path: Path, case_id: str, record: Mapping[str, Any], sweep_info: Mapping[str, Any]) -> None:
+    """Add one case to the store safely: update a copy in memory, then write it atomically.
+
+    The store is read, updated in memory and written by :func:`stepnf.atomic.write_bytes`: a
+    failed write (full disk) raises :class:`stepnf.errors.OutputError` and leaves the previous
+    store untouched. A store of a newer ``format_version`` is refused (:class:`StoreError`).
+    Concurrent writers (two sweeps of one store) are serialised by a lock on the folder.
+    """
+    path = Path(path)
+    with _folder_lock(path.parent):  # two sweeps on one store: no case lost between read and replace
+        _write_case_locked(path, case_id, record, sweep_info)
+
+
+@contextlib.contextmanager
+def _folder_lock(folder: Path):
+    """Exclusive ``flock`` on the store's folder while a case is added (best effort: no lock if refused).
+
+    The folder itself is locked, not a lock file, so nothing is left beside the store.
+    """
+    import fcntl
+
+    fd = -1
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        fcntl.flock(fd, fcntl.LOCK_EX)
+    except OSError:
+        pass  # the write below reports a folder that cannot be used
+    try:
+        yield
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        if fd >= 0:
+            os.close(fd)  # releases the lock
+
+
+def _write_case_locked(path: Path, case_id: str, record: Mapping[str, Any], sweep_info: Mapping[str, Any]) -> None:
+    from .atomic import hdf5_bytes, write_bytes
+
+    try:
+        base = path.read_bytes()
+    except FileNotFoundError:
+        base = None
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot read the sweep store: {exc}") from exc
+
+    def fill(f: Any) -> None:
+        if base is not None:
+            _check_store(f, path)
+        f.attrs["sweep"] = json.dumps(sweep_info, default=str)
+        cases = f.require_group("cases")
+        if case_id in cases:
+            del cases[case_id]
+        g = cases.create_group(case_id)
+        for k, v in record.items():
+            g.attrs[k] = json.dumps(v, default=str) if isinstance(v, (dict, list)) else v
+
+    try:
+        data = hdf5_bytes(fill, format=STORE_FORMAT, format_version=STORE_FORMAT_VERSION, base=base)
+    except (OSError, KeyError) as exc:
+        raise StoreError(f"{path}: the sweep store is unreadable (corrupt or truncated): {exc}; "
+                         "it was left untouched") from exc
+    write_bytes(path, data, what="sweep store")
 
 
 # ------------------------------------------------------------------ execution
@@ -249,6 +409,13 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
         f"{len(todo)} to run -> {sweep.store}")
     if not todo:
         return report
+    # the store's folder must take a file: checked before any worker starts
+    from .atomic import check_folder
+
+    why = check_folder(sweep.store.parent)
+    if why is not None:
+        raise SceneError(sweep.file, "output.dir", f"the sweep store's folder {sweep.store.parent} is not "
+                         f"usable: {why}")
     address = scheduler or sweep.scheduler
     # Dask's own INFO chatter (event-loop warnings while FE workers compute) would bury the progress
     logging.getLogger("distributed").setLevel(logging.WARNING)

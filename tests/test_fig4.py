@@ -26,10 +26,18 @@ def test_fig4_of_the_model_against_itself(tmp_path, capsys):
     pts = fe_points(store)
     assert len(pts) == 9 and {p.kappa for p in pts} == {0.0, 4.0, 25.0}
     vonkarman_at(pts)
+    # Same model, two processes: the sweep ran in a Dask worker (one BLAS thread), the curves here (the
+    # machine's default). Threaded BLAS sums in another order, so the model's eigen-solve and quadrature
+    # sums differ at ~1e-15 relative; the NF denominators near the (2,0)-(0,1) 1:2 resonance (kappa ~ 3,
+    # next to the kappa = 4 point) and the eigenvector sensitivity amplify that to the measured 3e-12
+    # (8e-12 on another machine). rel = 1e-10 keeps a decade of margin and is still far below any
+    # modelling difference Fig. 4 shows (>= 1e-4).
+    rel = 1e-10
     for p in pts:
-        assert p.gamma_vk == pytest.approx(p.gamma_fe, rel=1e-12, abs=1e-14)
+        assert p.gamma_vk == pytest.approx(p.gamma_fe, rel=rel, abs=1e-14)
     s = summary(pts)
-    assert all(v["max_abs_difference"] < 1e-12 for v in s.values())
+    scale = max(abs(p.gamma_fe) for p in pts)
+    assert all(v["max_abs_difference"] < rel * scale for v in s.values())
     assert main(["fig4", str(store), "--out", str(tmp_path / "fig"), "--n-kappa", "20"]) == 0
     out = capsys.readouterr().out
     assert "max |dGamma|" in out and (tmp_path / "fig" / "fig4.png").stat().st_size > 10_000

@@ -120,7 +120,13 @@ def test_parallel_matches_serial(runs):
             # the issue's requirement; measured <= 3.2e-10 (dof order, partition and solvers all differ:
             # the serial run with SuperLU instead of MUMPS differs from itself by the same amount)
             assert Tp == pytest.approx(Ts, rel=1e-8), (ms["label"], name)
-            assert mp["methods"][name]["gamma"] == pytest.approx(ms["methods"][name]["gamma"], rel=1e-8)
+            # Gamma = T / w_max^2 also depends on max|phi| over the nodes, which moves with the orientation of
+            # an exact pair ((3,0) here): the probe fixes it only to the eigenvectors' round-off (~1e-9 rad, the
+            # runs differ in processes, BLAS threads, partition and solver), and a peak that falls between
+            # nodes moves by ~k times that angle: measured 1.4e-7 on (3,0), none on the single modes. 1e-6
+            # leaves a factor 7 and is far below any difference a user could act on.
+            assert mp["methods"][name]["gamma"] == pytest.approx(ms["methods"][name]["gamma"], rel=1e-6), \
+                (ms["label"], name)
 
 
 # ---------------------------------------------------------------- the distributed adapter on one process

@@ -101,7 +101,10 @@ def test_sweep_killed_and_resumed(tmp_path, plugin_env):
             serial = run_case(case.data, case.file, case.base_dir)
             got = final[case.id]["result"]
             for m in ("nf", "md", "smd"):
-                assert got["modes"][0]["methods"][m]["T"] == serial["modes"][0]["methods"][m]["T"]
+                # a Dask worker (one BLAS thread) against this process: the two-mode model's sums are
+                # scalar arithmetic with no BLAS reduction, so only a few ulps could differ (SIMD paths)
+                assert got["modes"][0]["methods"][m]["T"] == pytest.approx(
+                    serial["modes"][0]["methods"][m]["T"], rel=1e-14)
     finally:
         sys.path.remove(str(site))
         registry.installed_solvers(refresh=True)

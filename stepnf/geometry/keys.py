@@ -1,8 +1,9 @@
 """Scene keys shared by every adapter that meshes the spherical cap (issue 3: one vocabulary).
 
 ``[model.material]`` E, nu, rho and ``[model.geometry]`` shape, a, R (a number
-or "inf"), h and the O-grid resolution keys. Errors name the key and what is
-allowed, in the scene's file.
+or "inf"), h and the O-grid resolution keys. Every key has an allowed range
+(the constants below, each with its reason), checked when the scene is read:
+errors name the key, what was given and what is allowed, in the scene's file.
 """
 from __future__ import annotations
 
@@ -10,11 +11,34 @@ import math
 from typing import Any, Mapping, Sequence
 
 from ..errors import SceneError, allowed
+from ..scene import check_number, describe_value
+from .cap import DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
 
 MATERIAL_KEYS = ("E", "nu", "rho")
 SHAPES = ("spherical_cap",)
 RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick", "core")
 GEOMETRY_KEYS = ("shape", "a", "R", "h") + RESOLUTION_KEYS
+
+#: Lengths (any consistent unit): 1e-12 .. 1e12 spans nanometres in metres to kilometres in
+#: micrometres; the assembled stiffness holds up to the fourth power of lengths times E, which must
+#: stay far inside float range.
+LENGTH_RANGE = (1e-12, 1e12)
+#: E and rho in any consistent units (E: 1e3 Pa for a gel to 1e12 Pa for diamond; rho: 8e-9 t/mm^3
+#: in the mm-t-s system to 2e4 kg/m^3): 1e-20 .. 1e20 keeps their products with lengths finite.
+MATERIAL_RANGE = (1e-20, 1e20)
+#: Thinnest cap: h >= a / 1000. Then kappa = a^4/(R^2 h^2) <= (a/h)^2 <= 1e6 (R >= a), the range of
+#: the von Karman model (:data:`stepnf.models.vonkarman.RANGES`); thinner solids lock and no mesh
+#: of a few million dofs resolves them.
+MAX_SLENDERNESS = 1000.0
+#: Flattest finite cap: R <= 1e10 h. The mid-surface height sqrt(R^2 - r^2) - R is computed with an
+#: error ~1e-16 R, which must stay below 1e-6 h; a flatter cap is the plate R = "inf".
+MAX_R_OVER_H = 1e10
+#: O-grid resolution: each key's own range, then the whole mesh at most MAX_CAP_DOFS dofs (the
+#: defaults give 17 649, the paper's mesh 38k; 2 million quadratic-solid dofs need tens of GiB to
+#: factorise, beyond any workstation).
+RESOLUTION_RANGES: dict[str, tuple[int, int]] = {"n_core": (1, 400), "n_ring": (1, 400), "n_thick": (1, 50)}
+CORE_RANGE = (0.0, 1.0 / math.sqrt(2.0))  # open interval: the core square must fit inside the disk
+MAX_CAP_DOFS = 2_000_000
 
 
 def check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene_file) -> None:
@@ -24,42 +48,40 @@ def check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene
         raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
 
 
-def number(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False) -> float:
-    """``table[key]`` as a finite float (or ``inf`` when allowed, written ``"inf"``)."""
+def _is_inf(v: Any) -> bool:
+    return isinstance(v, str) and v.strip().lower() in ("inf", "infinity")
+
+
+def number(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False,
+           lo: float | None = None, hi: float | None = None) -> float:
+    """``table[key]`` as a finite float in ``[lo, hi]`` (or ``inf`` when allowed, written ``"inf"``)."""
     v = table.get(key)
-    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+    if allow_inf and _is_inf(v):
         return math.inf
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        kind = "a number" + (' or "inf"' if allow_inf else "")
-        raise SceneError(scene_file, f"{where}.{key}", f"expected {kind}, got {v!r}")
-    return float(v)
+    why = ' (or "inf")' if allow_inf else ""
+    return float(check_number(scene_file, f"{where}.{key}", v, lo=lo, hi=hi, why=why))
 
 
-def positive_int(table: Mapping[str, Any], where: str, key: str, scene_file) -> int:
-    """``table[key]`` as an integer >= 1."""
-    v = table.get(key)
-    if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-        raise SceneError(scene_file, f"{where}.{key}", f"expected a positive integer, got {v!r}")
-    return v
+def positive_int(table: Mapping[str, Any], where: str, key: str, scene_file, *, hi: int | None = None) -> int:
+    """``table[key]`` as an integer >= 1 (and <= ``hi`` when given)."""
+    return int(check_number(scene_file, f"{where}.{key}", table.get(key), integer=True, lo=1, hi=hi))
 
 
 def positive_number(table: Mapping[str, Any], where: str, key: str, scene_file, *,
-                    allow_inf: bool = False) -> float:
-    """``table[key]`` as a float > 0 (or ``inf`` when allowed, written ``"inf"``)."""
+                    allow_inf: bool = False, hi: float | None = None) -> float:
+    """``table[key]`` as a float > 0 (and <= ``hi`` when given; ``inf`` when allowed, written ``"inf"``)."""
     v = table.get(key)
-    if allow_inf and isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+    if allow_inf and _is_inf(v):
         return math.inf
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        kind = "a positive number" + (' or "inf"' if allow_inf else "")
-        raise SceneError(scene_file, f"{where}.{key}", f"expected {kind}, got {v!r}")
-    return float(v)
+    why = ' (or "inf")' if allow_inf else ""
+    return float(check_number(scene_file, f"{where}.{key}", v, lo=0, hi=hi, lo_open=True, why=why))
 
 
 def material(config: Mapping[str, Any], scene_file, *, required: bool = True) -> dict[str, float]:
     """``[model.material]``: E > 0, -1 < nu < 0.5, rho > 0 (all three when ``required``)."""
     mat = config.get("material", {})
     if not isinstance(mat, Mapping):
-        raise SceneError(scene_file, "model.material", "expected a table with E, nu, rho")
+        raise SceneError(scene_file, "model.material", f"expected a table with E, nu, rho, got {describe_value(mat)}")
     check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
     missing = [k for k in MATERIAL_KEYS if k not in mat]
     if required and missing:
@@ -71,12 +93,10 @@ def material(config: Mapping[str, Any], scene_file, *, required: bool = True) ->
         if k not in mat:
             continue
         if k == "nu":
-            v = mat[k]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not -1 < v < 0.5:
-                raise SceneError(scene_file, "model.material.nu", f"Poisson's ratio must lie in (-1, 0.5), got {v!r}")
-            out[k] = float(v)
+            out[k] = float(check_number(scene_file, "model.material.nu", mat[k], lo=-1.0, hi=0.5, lo_open=True,
+                                        hi_open=True, why=" (Poisson's ratio)"))
         else:
-            out[k] = positive_number(mat, "model.material", k, scene_file)
+            out[k] = number(mat, "model.material", k, scene_file, lo=MATERIAL_RANGE[0], hi=MATERIAL_RANGE[1])
     return out
 
 
@@ -84,7 +104,8 @@ def cap_dimensions(geom: Mapping[str, Any], scene_file, *, what: str = "a spheri
     """``a``, ``R`` (a number or "inf") and ``h`` of ``[model.geometry]``, checked.
 
     Refuses an impossible cap: R must be at least a (a sphere of radius R has
-    no cap wider than it), and h must be positive and below a.
+    no cap wider than it), and h must lie in [a / :data:`MAX_SLENDERNESS`, a); and
+    lengths outside :data:`LENGTH_RANGE` or R above :data:`MAX_R_OVER_H` h.
     """
     missing = [k for k in ("a", "R", "h") if k not in geom]
     if missing:
@@ -101,19 +122,80 @@ def cap_dimensions(geom: Mapping[str, Any], scene_file, *, what: str = "a spheri
     if R < a:
         raise SceneError(scene_file, "model.geometry.R", f"radius of curvature must be >= a = {a} "
                          f"(or \"inf\" for the flat plate), got {R}")
+    lo, hi = LENGTH_RANGE
+    for key, value in (("a", a), ("h", h)) + ((("R", R),) if math.isfinite(R) else ()):
+        check_number(scene_file, f"model.geometry.{key}", value, lo=lo, hi=hi, why=" (a length in model units)")
+    if h * MAX_SLENDERNESS < a:
+        raise SceneError(scene_file, "model.geometry.h", f"thickness must be at least a/{MAX_SLENDERNESS:g} = "
+                         f"{a / MAX_SLENDERNESS:g} (kappa = a^4/(R^2 h^2) <= (a/h)^2 stays <= 1e6), got {h}")
+    if math.isfinite(R) and R > MAX_R_OVER_H * h:
+        raise SceneError(scene_file, "model.geometry.R", f"radius of curvature must be <= {MAX_R_OVER_H:g} h = "
+                         f"{MAX_R_OVER_H * h:g} (flatter caps lose their shape to round-off); write R = \"inf\" "
+                         f"for the flat plate, got {R}")
     return a, R, h
+
+
+def cap_dofs(n_core: int, n_ring: int, n_thick: int) -> int:
+    """Dofs of the hex27 O-grid cap (:func:`stepnf.geometry.cap.spherical_cap`; hex20 and tet10 have no more):
+    ``(2 n_core + 1)^2 + 16 n_core n_ring`` nodes per level, ``2 n_thick + 1`` levels, 3 dofs a node."""
+    return 3 * (2 * n_thick + 1) * ((2 * n_core + 1) ** 2 + 16 * n_core * n_ring)
+
+
+def cap_resolution(geom: Mapping[str, Any], scene_file) -> dict[str, Any]:
+    """The resolution keys given in ``[model.geometry]`` (n_core, n_ring, n_thick, core), each within
+    its range and the whole mesh within :data:`MAX_CAP_DOFS` dofs."""
+    out: dict[str, Any] = {}
+    for key, (lo, hi) in RESOLUTION_RANGES.items():
+        if key in geom:
+            out[key] = int(check_number(scene_file, f"model.geometry.{key}", geom[key], integer=True, lo=lo, hi=hi))
+    if "core" in geom:
+        out["core"] = float(check_number(scene_file, "model.geometry.core", geom["core"], lo=CORE_RANGE[0],
+                                         hi=CORE_RANGE[1], lo_open=True, hi_open=True,
+                                         why=" (half-width of the core square, a fraction of a)"))
+    n = {"n_core": DEFAULT_N_CORE, "n_ring": DEFAULT_N_RING, "n_thick": DEFAULT_N_THICK, **out}
+    dofs = cap_dofs(n["n_core"], n["n_ring"], n["n_thick"])
+    if dofs > MAX_CAP_DOFS:
+        key = max(("n_core", "n_ring", "n_thick"), key=lambda k: (k in out, n[k] / RESOLUTION_RANGES[k][1]))
+        raise SceneError(scene_file, f"model.geometry.{key}", f"the mesh (n_core = {n['n_core']}, n_ring = "
+                         f"{n['n_ring']}, n_thick = {n['n_thick']}) would have about {dofs:,} dofs; at most "
+                         f"{MAX_CAP_DOFS:,} are allowed (tens of GiB to factorise). Lower the resolution")
+    return out
 
 
 def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
     """``[model.geometry]`` of a generated cap: ``{"shape", "a", "R", "h", "resolution"}`` (see
-    :func:`cap_dimensions`)."""
+    :func:`cap_dimensions` and :func:`cap_resolution`)."""
     geom = config.get("geometry")
     if not isinstance(geom, Mapping):
-        raise SceneError(scene_file, "model.geometry", "expected a table with shape, a, R, h")
+        raise SceneError(scene_file, "model.geometry", f"expected a table with shape, a, R, h, got "
+                         f"{describe_value(geom)}")
     check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
     shape = geom.get("shape", "spherical_cap")
     if shape not in SHAPES:
-        raise SceneError(scene_file, "model.geometry.shape", f"got {shape!r}. Pick one of {allowed(SHAPES)}")
+        raise SceneError(scene_file, "model.geometry.shape", f"got {describe_value(shape)}. Pick one of "
+                         f"{allowed(SHAPES)}")
     a, R, h = cap_dimensions(geom, scene_file)
-    return {"shape": shape, "a": a, "R": R, "h": h,
-            "resolution": {k: geom[k] for k in RESOLUTION_KEYS if k in geom}}
+    return {"shape": shape, "a": a, "R": R, "h": h, "resolution": cap_resolution(geom, scene_file)}
+
+
+#: Run settings of the external adapters (read by :func:`stepnf.external.run_keys`): a time-out above
+#: 1e7 s (four months) is no time-out, no machine has more than 1024 cores for one solver run, 256
+#: solver runs at once already exceed any node's memory, and 2^24 MB is 16 TiB.
+RUN_RANGES: dict[str, tuple[float, float]] = {"timeout": (0.0, 1e7), "threads": (1, 1024), "ncpus": (1, 1024),
+                                              "parallel_runs": (1, 256), "memory_mb": (1, 2**24)}
+
+
+def run_limits(run: Mapping[str, Any], scene_file) -> None:
+    """Refuse run settings (``model.timeout``, ``model.threads``...) outside :data:`RUN_RANGES`."""
+    for key, (lo, hi) in RUN_RANGES.items():
+        if key in run:
+            check_number(scene_file, f"model.{key}", run[key], integer=key != "timeout", lo=lo, hi=hi,
+                         lo_open=key == "timeout", why=" (seconds)" if key == "timeout" else "")
+
+
+def text_value(config: Mapping[str, Any], key: str, scene_file, what: str = "a file name") -> str:
+    """``config[key]`` as a non-empty string without NUL (a file or folder name, a command)."""
+    v = config.get(key)
+    if not isinstance(v, str) or not v.strip() or "\x00" in v:
+        raise SceneError(scene_file, f"model.{key}", f"expected {what} (a non-empty string), got {describe_value(v)}")
+    return v

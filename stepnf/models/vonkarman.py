@@ -57,6 +57,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import SceneError, allowed
+from ..scene import check_number, interval
 from ..modal_model import ModalModel
 from ..shell import ShellScales
 from ._couplings import laplacian, trilinear
@@ -68,6 +69,18 @@ from ._radial import RadialFamily, angular_weight, clamped_plate_family, free_pl
 #: (k_max, n_transverse, n_galerkin, n_airy) = (10, 20, 40, 50) at kappa = 0, 10, 25
 #: (bench/vonkarman_convergence.py); n_galerkin defaults to max(20, n_transverse + 12).
 DEFAULTS: dict[str, Any] = {"nu": 0.3, "k_max": 8, "n_transverse": 8, "n_galerkin": 20, "n_airy": 24}
+
+#: Allowed range of each parameter (``nu``: the open interval). kappa = a^4/(R^2 h^2) = (2 H/h)^2
+#: with H ~ a^2/(2R) the rise of the cap: 1e6 is a cap rising 500 thicknesses, far beyond shallow-shell
+#: theory (and the limit h >= a/1000 of the cap geometry keys, :mod:`stepnf.geometry.keys`, gives
+#: kappa <= (a/h)^2 <= 1e6 there too); past ~1e7 the Ritz problem ``diag(omega^2) + 12 (1 - nu^2)
+#: kappa A^T A`` loses its digits (the (2,0) frequency drifts by 3% at 1e8, and is wrong at 1e10).
+#: The resolution bounds keep one model within about a minute and half a GiB: the cost grows like
+#: k_max^2, n_transverse^2 and n_airy^2; the largest allowed (k_max, n_transverse, n_galerkin, n_airy)
+#: = (16, 32, 64, 64) builds in 39 s and 0.3 GiB ((24, 60, 100, 100): 200 s and 1 GiB), while
+#: (10, 20, 40, 50) already converges T to 3e-7 (bench/vonkarman_convergence.py).
+RANGES: dict[str, tuple[float, float]] = {"kappa": (0.0, 1e6), "nu": (-1.0, 0.5), "k_max": (0, 16),
+                                          "n_transverse": (1, 32), "n_galerkin": (1, 64), "n_airy": (1, 64)}
 
 
 @dataclass
@@ -98,6 +111,8 @@ class VonKarmanShell(ModalModel):
     n_galerkin : free-plate modes per k in the Ritz basis of the shell modes (>= n_transverse)
     n_airy : Airy functions per k (for every k up to ``2 k_max``)
 
+    Each parameter must lie in its range of :data:`RANGES` (a :class:`SceneError` otherwise).
+
     Building costs ~0.07 s per kappa once the kappa-independent Bessel tables are
     cached (~1.5-2 s for the first model of a process).
     """
@@ -124,32 +139,27 @@ class VonKarmanShell(ModalModel):
     def from_config(cls, config: Mapping[str, Any], *, base_dir: Path | None = None,
                     scene_file: Path | None = None) -> "VonKarmanShell":
         """Build from the ``[model]`` table: ``kappa`` (required), ``nu``, ``k_max``,
-        ``n_transverse``, ``n_galerkin``, ``n_airy`` (defaults: :data:`DEFAULTS`)."""
+        ``n_transverse``, ``n_galerkin``, ``n_airy`` (defaults: :data:`DEFAULTS`, ranges:
+        :data:`RANGES`); every key is checked before anything is computed."""
         keys = ["kappa", "nu", "k_max", "n_transverse", "n_galerkin", "n_airy"]
         unknown = sorted(set(config) - set(keys))
         if unknown:
             raise SceneError(scene_file, f"model.{unknown[0]}",
                              f"unknown key for solver 'vonkarman'; allowed keys: {allowed(keys)}")
         if "kappa" not in config:
-            raise SceneError(scene_file, "model.kappa", "missing: the shell aspect ratio a^4/(R^2 h^2), a number >= 0")
+            raise SceneError(scene_file, "model.kappa", "missing: the shell aspect ratio a^4/(R^2 h^2), a number "
+                             f"in {interval(*RANGES['kappa'])}")
         kw: dict[str, Any] = {}
         for key in keys:
-            if key not in config:
-                continue
-            val = config[key]
-            if key in ("kappa", "nu"):
-                if isinstance(val, bool) or not isinstance(val, (int, float)):
-                    raise SceneError(scene_file, f"model.{key}", f"expected a number, got {val!r}")
-                kw[key] = float(val)
-            else:
-                if isinstance(val, bool) or not isinstance(val, int):
-                    raise SceneError(scene_file, f"model.{key}", f"expected an integer, got {val!r}")
-                kw[key] = int(val)
-        n_gal = kw.get("n_galerkin")
+            if key in config:
+                lo, hi = RANGES[key]
+                integer = key not in ("kappa", "nu")
+                kw[key] = check_number(scene_file, f"model.{key}", config[key], integer=integer, lo=lo, hi=hi,
+                                       lo_open=key == "nu", hi_open=key == "nu")
         n_tr = kw.get("n_transverse", DEFAULTS["n_transverse"])
-        _check(kw["kappa"], kw.get("nu", DEFAULTS["nu"]), kw.get("k_max", DEFAULTS["k_max"]), n_tr,
-               n_gal if n_gal is not None else max(DEFAULTS["n_galerkin"], n_tr + 12),
-               kw.get("n_airy", DEFAULTS["n_airy"]), scene_file)
+        n_gal = kw.get("n_galerkin", max(DEFAULTS["n_galerkin"], n_tr + 12))
+        _check(float(kw["kappa"]), float(kw.get("nu", DEFAULTS["nu"])), kw.get("k_max", DEFAULTS["k_max"]), n_tr,
+               n_gal, kw.get("n_airy", DEFAULTS["n_airy"]), scene_file)
         return cls(**kw)
 
     # ------------------------------------------------------------------ build
@@ -333,13 +343,13 @@ def _peak(y: np.ndarray, dx: float) -> float:
 
 def _check(kappa: float, nu: float, k_max: int, n_transverse: int, n_galerkin: int, n_airy: int,
            scene_file: Path | None) -> None:
-    if not (math.isfinite(kappa) and kappa >= 0):
-        raise SceneError(scene_file, "model.kappa", f"must be a finite number >= 0 (0: plate), got {kappa!r}")
-    if not (-1.0 < nu < 0.5):
-        raise SceneError(scene_file, "model.nu", f"Poisson ratio must lie in (-1, 0.5), got {nu!r}")
-    for key, val, lo in (("k_max", k_max, 0), ("n_transverse", n_transverse, 1), ("n_airy", n_airy, 1)):
-        if val < lo:
-            raise SceneError(scene_file, f"model.{key}", f"must be an integer >= {lo}, got {val!r}")
+    """Every parameter within :data:`RANGES`, and ``n_galerkin >= n_transverse``."""
+    values = {"kappa": kappa, "nu": nu, "k_max": k_max, "n_transverse": n_transverse, "n_galerkin": n_galerkin,
+              "n_airy": n_airy}
+    for key, val in values.items():
+        lo, hi = RANGES[key]
+        check_number(scene_file, f"model.{key}", val, integer=key not in ("kappa", "nu"), lo=lo, hi=hi,
+                     lo_open=key == "nu", hi_open=key == "nu")
     if n_galerkin < n_transverse:
         raise SceneError(scene_file, "model.n_galerkin",
                          f"must be >= n_transverse = {n_transverse} (the shell modes are taken from "

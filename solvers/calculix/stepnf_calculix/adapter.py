@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from stepnf.errors import SceneError, allowed
 from stepnf.geometry import keys as cap_keys
 from stepnf.geometry.keys import MATERIAL_KEYS
+from stepnf.geometry.checks import units_warning
 from stepnf.geometry.solid import CapSolid
 from stepnf.external import CommandTemplate, ExternalSolverAdapter, missing_output, require_files, run_keys
 
@@ -179,17 +180,28 @@ class CalculixAdapter(CapSolid, ExternalSolverAdapter):
         self.timings["matrices"] = time.perf_counter() - t0
 
     def _read_stored_matrices(self, wd: Path, job: str, log: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-        """K and M of a ``SOLVER=MATRIXSTORAGE`` run, in this adapter's dof order."""
+        """K and M of a ``SOLVER=MATRIXSTORAGE`` run, in this adapter's dof order.
+
+        Garbage, truncation or NaN in the ``.dof``/``.sti``/``.mas`` files is a
+        :class:`~stepnf.errors.SolverRunError` naming the file, the work folder and the log's end.
+        """
         sti, mas, dof = require_files(wd, [f"{job}.sti", f"{job}.mas", f"{job}.dof"], log=log, what="ccx")
-        nodes, dirs = read_dof(dof)
+        try:
+            nodes, dirs = read_dof(dof)
+        except ResultFormatError as exc:
+            raise missing_output(wd, f"ccx output unreadable: {exc}") from None
         n = self.n_dofs
-        ok = (nodes <= self._pos.size - 1) & (dirs >= 1) & (dirs <= 3)
-        index = np.where(ok, self._pos[np.minimum(nodes, self._pos.size - 1)] * 3 + dirs - 1, -1)
+        ok = (nodes >= 0) & (nodes <= self._pos.size - 1) & (dirs >= 1) & (dirs <= 3)
+        index = np.where(ok, self._pos[np.clip(nodes, 0, self._pos.size - 1)] * 3 + dirs - 1, -1)
         if len(index) != n or np.any(index < 0) or len(np.unique(index)) != n:
             raise missing_output(
                 wd, f"{job}.dof lists {len(index)} dofs, expected the {n} = 3 x {n // 3} nodal translations"
             )
-        return _permute(read_matrix(sti, n), index), _permute(read_matrix(mas, n), index)
+        try:
+            K, M = read_matrix(sti, n), read_matrix(mas, n)
+        except ResultFormatError as exc:
+            raise missing_output(wd, f"ccx output unreadable: {exc}") from None
+        return _permute(K, index), _permute(M, index)
 
     # -------------------------------------------------- tangent stiffness
     def tangent_stiffness(self, u: np.ndarray) -> sp.csr_matrix:
@@ -239,10 +251,11 @@ def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:
 def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapter:
     cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
     run = run_keys(config, base_dir, scene_file, ints=("threads", "parallel_runs"))
+    cap_keys.run_limits(run, scene_file)
     if "executable" in config:
-        run["executable"] = str(config["executable"])
+        run["executable"] = cap_keys.text_value(config, "executable", scene_file, "an executable name or path")
     if "template" in config:
-        tpl = base_dir / str(config["template"])
+        tpl = base_dir / cap_keys.text_value(config, "template", scene_file)
         if not tpl.is_file():
             raise SceneError(scene_file, "model.template", f"template file {tpl} does not exist")
         run["template"] = tpl
@@ -258,12 +271,16 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapt
         raise SceneError(scene_file, "model", "give exactly one of mesh = \"file.inp\" or a [model.geometry] table")
     try:
         if has_mesh:
-            path = base_dir / str(config["mesh"])
+            path = base_dir / cap_keys.text_value(config, "mesh", scene_file)
             if path.suffix.lower() != ".inp" or not path.is_file():
                 raise SceneError(scene_file, "model.mesh", f"expected an existing .inp file, got {str(path)!r}")
-            return cls.from_inp(path, material=material, **run)
+            ad = cls.from_inp(path, material=material, **run)
+            units_warning(ad.points, material, source=path)
+            return ad
         g = cap_keys.cap_geometry(config, scene_file)
-        return cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
+        ad = cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
+        units_warning(ad.points, material, source=scene_file, thickness=g["h"])
+        return ad
     except ValueError as exc:
         if isinstance(exc, SceneError):
             raise

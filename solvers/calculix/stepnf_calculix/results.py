@@ -34,7 +34,11 @@ def read_dat_forces(path: str | Path, node_ids: np.ndarray, n_steps: int) -> np.
     heads = list(_HEADER.finditer(text))
     by_time: dict[int, tuple[int, int]] = {}
     for i, m in enumerate(heads):
-        t = float(m.group(2))
+        try:
+            t = float(m.group(2))
+        except ValueError:
+            raise ResultFormatError(f"{path}: unreadable time {m.group(2)!r} in the header "
+                                    f"{m.group(0).strip()!r}") from None
         k = int(round(t))
         end = heads[i + 1].start() if i + 1 < len(heads) else len(text)
         if abs(t - k) < 1e-6:
@@ -58,6 +62,13 @@ def read_dat_forces(path: str | Path, node_ids: np.ndarray, n_steps: int) -> np.
             raise ResultFormatError(
                 f"{path}: the force block of step {k} lists {len(nodes)} nodes, expected the {len(node_ids)} of NALL"
             )
+        if np.any(vals[:, 0] != nodes):
+            raise ResultFormatError(f"{path}: the force block of step {k} has a non-integer node number")
+        bad = ~np.isfinite(vals[:, 1:])
+        if bad.any():
+            r = int(np.nonzero(bad.any(axis=1))[0][0])
+            raise ResultFormatError(f"{path}: NaN or inf forces in step {k}, e.g. node {nodes[r]}: "
+                                    f"{vals[r, 1:].tolist()} ({int(bad.sum())} entries); ccx probably diverged")
         out[k - 1, pos[nodes]] = vals[:, 1:]
     return out
 
@@ -71,27 +82,64 @@ def _numbers(block: str, path) -> np.ndarray:
 
 def read_dof(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Node ids and directions (1-based) of the matrix rows from a ``.dof`` file."""
-    lines = Path(path).read_text().split()
+    lines = Path(path).read_text(errors="replace").split()
     nodes = np.empty(len(lines), dtype=np.int64)
     dirs = np.empty(len(lines), dtype=np.int64)
     for i, s in enumerate(lines):
         n, _, d = s.partition(".")
-        nodes[i], dirs[i] = int(n), int(d)
+        try:
+            nodes[i], dirs[i] = int(n), int(d)
+        except ValueError:
+            raise ResultFormatError(f"{path}: entry {i + 1} is {s[:40]!r}; expected 'node.direction' "
+                                    "(e.g. '17.2')") from None
     return nodes, dirs
 
 
 def read_matrix(path: str | Path, n: int) -> sp.csr_matrix:
-    """Symmetric matrix (n, n) from a ``.sti``/``.mas`` upper-triangle file."""
-    data = np.fromfile(str(path), sep=" ")
+    """Symmetric matrix (n, n) from a ``.sti``/``.mas`` upper-triangle file.
+
+    Raises :class:`ResultFormatError` on text that is not ``i j value``
+    triplets, indices outside ``1..n`` or not integers, NaN or inf values, and
+    a missing diagonal entry (every translational dof of a solid has one: a
+    missing one means a truncated file).
+    """
+    tokens = Path(path).read_text(errors="replace").split()
+    try:
+        data = np.array(tokens, dtype=float)
+    except ValueError:
+        bad = next(i for i, t in enumerate(tokens) if not _is_number(t))
+        raise ResultFormatError(f"{path}: entry {bad // 3 + 1} holds {tokens[bad][:40]!r}; expected "
+                                "'i j value' triplets") from None
     if data.size % 3:
-        raise ResultFormatError(f"{path}: expected 'i j value' triplets")
+        raise ResultFormatError(f"{path}: {data.size} numbers, not 'i j value' triplets (a truncated file?)")
     data = data.reshape(-1, 3)
-    i = data[:, 0].astype(np.int64) - 1
-    j = data[:, 1].astype(np.int64) - 1
-    if data.size and (i.min() < 0 or max(i.max(), j.max()) >= n):
+    ij = data[:, :2]
+    if data.size and (not np.all(np.isfinite(ij)) or np.any(ij != np.round(ij))):
+        raise ResultFormatError(f"{path}: non-integer row or column indices")
+    i = ij[:, 0].astype(np.int64) - 1
+    j = ij[:, 1].astype(np.int64) - 1
+    if data.size and (min(i.min(), j.min()) < 0 or max(i.max(), j.max()) >= n):
         raise ResultFormatError(f"{path}: indices outside 1..{n}")
     v = data[:, 2]
+    bad = ~np.isfinite(v)
+    if bad.any():
+        e = int(np.nonzero(bad)[0][0])
+        raise ResultFormatError(f"{path}: {int(bad.sum())} NaN or inf values, e.g. entry ({i[e] + 1}, {j[e] + 1})")
+    diag = np.zeros(n, dtype=bool)
+    diag[i[i == j]] = True
+    if not diag.all():
+        miss = np.nonzero(~diag)[0]
+        raise ResultFormatError(f"{path}: no diagonal entry for {len(miss)} of the {n} rows, e.g. row "
+                                f"{miss[0] + 1} (a truncated file?)")
     off = i != j
     rows = np.concatenate([i, j[off]])
     cols = np.concatenate([j, i[off]])
     return sp.csr_matrix((np.concatenate([v, v[off]]), (rows, cols)), shape=(n, n))
+
+
+def _is_number(t: str) -> bool:
+    try:
+        float(t)
+    except ValueError:
+        return False
+    return True

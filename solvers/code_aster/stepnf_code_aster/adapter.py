@@ -123,10 +123,9 @@ class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
     @classmethod
     def from_med(cls, path: str | Path, *, mesh_name: str | None = None, **kw: Any) -> "CodeAsterAdapter":
         """A user's MED volume mesh."""
-        import h5py
+        from .med import mesh_name as first_mesh
 
-        with h5py.File(path, "r") as f:
-            name = mesh_name or next(iter(f["ENS_MAA"]))
+        name = mesh_name or first_mesh(path)
         return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, **kw)
 
     @classmethod
@@ -248,8 +247,9 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
                 raise SceneError(scene_file, f"model.{key}", f"expected a non-empty string, got {config[key]!r}")
             kw[key] = config[key]
     kw.update(run_keys(config, base_dir, scene_file, ints=("ncpus", "memory_mb", "parallel_runs")))
+    cap_keys.run_limits(kw, scene_file)
     if "templates" in config:
-        folder = base_dir / str(config["templates"])
+        folder = base_dir / cap_keys.text_value(config, "templates", scene_file, "a folder name")
         if not folder.is_dir():
             raise SceneError(scene_file, "model.templates", f"template folder {folder} does not exist; it may hold "
                              f"any of {list(TEMPLATE_NAMES)}")
@@ -262,7 +262,7 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
         raise SceneError(scene_file, "model", "give exactly one of mesh = \"file.med\" or a [model.geometry] table")
     try:
         if "mesh" in config:
-            path = base_dir / str(config["mesh"])
+            path = base_dir / cap_keys.text_value(config, "mesh", scene_file)
             if path.suffix.lower() not in (".med", ".rmed", ".mmed") or not path.is_file():
                 raise SceneError(scene_file, "model.mesh", f"expected an existing MED file, got {str(path)!r}")
             return cls.from_med(path, material=material, **kw)

@@ -152,11 +152,38 @@ def read_profile(path: str | Path, name: str) -> np.ndarray:
 
 
 def read_mesh_nodes(path: str | Path, mesh: str | None = None) -> np.ndarray:
-    """Node coordinates (N, DIM) of ``mesh`` (the first mesh when ``None``)."""
+    """Node coordinates (N, DIM) of ``mesh`` (the first mesh when ``None``).
+
+    Raises :class:`MedError` for a file that is not HDF5/MED, a mesh without
+    nodes, or a node with NaN or inf coordinates (naming the node, 0-based).
+    """
     import h5py
 
-    with h5py.File(path, "r") as f:
-        return read_mesh_nodes_h5(f, mesh)
+    try:
+        with h5py.File(path, "r") as f:
+            X = read_mesh_nodes_h5(f, mesh)
+    except MedError:
+        raise
+    except (OSError, KeyError, ValueError, StopIteration) as exc:
+        raise MedError(f"{path}: not a readable MED mesh ({type(exc).__name__}: {exc})") from None
+    if X.size == 0:
+        raise MedError(f"{path}: the mesh has no nodes")
+    bad = ~np.isfinite(X).all(axis=1)
+    if bad.any():
+        i = int(np.nonzero(bad)[0][0])
+        raise MedError(f"{path}: node {i} has coordinates {X[i].tolist()} (NaN or inf); {int(bad.sum())} node(s) do")
+    return X
+
+
+def mesh_name(path: str | Path) -> str:
+    """Name of the first mesh of a MED file; :class:`MedError` when there is none or the file is unreadable."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return next(iter(f["ENS_MAA"]))
+    except (OSError, KeyError, ValueError, StopIteration) as exc:
+        raise MedError(f"{path}: not a readable MED mesh ({type(exc).__name__}: {exc})") from None
 
 
 # --------------------------------------------------------------------- writer

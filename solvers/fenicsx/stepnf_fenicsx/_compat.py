@@ -7,6 +7,7 @@ made ``create_mesh`` take a basix element; adapt this module only.
 """
 from __future__ import annotations
 
+import contextlib
 import inspect
 import logging
 import os
@@ -68,19 +69,47 @@ def create_mesh(points: np.ndarray, cells: np.ndarray, cell_type: str, comm=None
     domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(name), degree))
     cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64)[:, perm])
     points = np.ascontiguousarray(points, dtype=float)
-    if comm is None or comm.size == 1:
-        msh = dmesh.create_mesh(comm or comm_self(), cells, points, domain)
-    else:  # rank 0 hands in the mesh, the partitioner spreads the cells (no ghost cells: cell integrals only)
-        if comm.rank != 0:
-            cells, points = cells[:0], points[:0]
-        msh = dmesh.create_mesh(comm, cells, points, domain, ghost_mode=dmesh.GhostMode.none)
+    with quiet_jit():
+        if comm is None or comm.size == 1:
+            msh = dmesh.create_mesh(comm or comm_self(), cells, points, domain)
+        else:  # rank 0 hands in the mesh, the partitioner spreads the cells (no ghost cells: cell integrals only)
+            if comm.rank != 0:
+                cells, points = cells[:0], points[:0]
+            msh = dmesh.create_mesh(comm, cells, points, domain, ghost_mode=dmesh.GhostMode.none)
     return msh, np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
 
 
 def vector_space(msh, degree: int):
     from dolfinx import fem
 
-    return fem.VectorFunctionSpace(msh, ("Lagrange", degree))
+    with quiet_jit():
+        return fem.VectorFunctionSpace(msh, ("Lagrange", degree))
+
+
+@contextlib.contextmanager
+def quiet_jit():
+    """No INFO lines from the just-in-time C compiler ("running build_ext", the gcc command lines).
+
+    Forms AND elements (at mesh and function-space creation) are compiled on
+    first use; the build logs through the root logger, to which dolfinx
+    attached a handler, and lowers that logger's level itself (distutils'
+    ``set_threshold``), so a filter on the root logger drops what is below
+    WARNING, and the level is put back afterwards.
+    """
+    root = logging.getLogger()
+    level = root.level
+    drop_info = _BelowWarning()
+    root.addFilter(drop_info)
+    try:
+        yield
+    finally:
+        root.removeFilter(drop_info)
+        root.setLevel(level)
+
+
+class _BelowWarning(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno >= logging.WARNING
 
 
 def form(expr):
@@ -89,13 +118,8 @@ def form(expr):
 
     jit = {"cache_dir": str(cache_dir()), "cffi_extra_compile_args": ["-O2"]}
     key = "jit_params" if "jit_params" in inspect.signature(fem.form).parameters else "jit_options"
-    root = logging.getLogger()
-    level = root.level
-    root.setLevel(max(level, logging.WARNING))  # the C compiler's "running build_ext" chatter
-    try:
+    with quiet_jit():
         return fem.form(expr, **{key: jit})
-    finally:
-        root.setLevel(level)
 
 
 def assemble_vector(compiled) -> np.ndarray:

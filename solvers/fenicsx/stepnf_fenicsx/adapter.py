@@ -31,39 +31,39 @@ from .model import Material, SvkForms
 
 
 def read_mesh(path: str | Path) -> VolumeMesh:
-    """Read the volume cells of any file meshio reads (one supported cell type)."""
+    """Read the volume cells of any file meshio reads (one supported cell type).
+
+    Every defect :func:`stepnf.geometry.checks.check_volume_mesh` knows (no
+    cells, NaN coordinates, dangling node numbers, flat meshes, coincident
+    nodes, degenerate, tangled or overlapping cells) is a
+    :class:`~stepnf.errors.MeshError` naming the file and the cell or node
+    (0-based positions in the file, cells counted within their type).
+    """
     import meshio
 
-    from stepnf.geometry.checks import duplicate_nodes, tangled_cells
+    from stepnf.errors import MeshError
+    from stepnf.geometry.checks import check_volume_mesh
 
     try:
         m = meshio.read(str(path))
     except SystemExit as exc:  # meshio exits (!) on a file it cannot identify
-        raise ValueError(f"{path}: meshio cannot read this file (unknown or corrupt format)") from exc
+        raise MeshError(path, "meshio cannot read this file (unknown or corrupt format)") from exc
+    found = [c.type for c in m.cells]
     kinds = [c.type for c in m.cells if c.type in _compat.CELLS]
     if not kinds:
-        raise ValueError(f"{path}: no volume cells dolfinx can use; found {[c.type for c in m.cells]}, "
-                         f"supported {list(_compat.CELLS)}")
+        raise MeshError(path, f"no volume cells dolfinx can use; found {found or 'no cells at all'}, "
+                              f"supported {list(_compat.CELLS)}")
     if len(set(kinds)) > 1:
-        raise ValueError(f"{path}: mixed volume cell types {sorted(set(kinds))}; give one cell type")
-    cells = np.concatenate([c.data for c in m.cells if c.type == kinds[0]])
+        raise MeshError(path, f"mixed volume cell types {sorted(set(kinds))}; give one cell type")
+    cells = np.concatenate([np.asarray(c.data) for c in m.cells if c.type == kinds[0]])
+    pts = np.asarray(m.points)
+    check_volume_mesh(pts, [(kinds[0], cells)], source=path, supported=list(_compat.CELLS))
+    cells = cells.astype(np.int64)
     used = np.unique(cells)
-    renum = np.full(len(m.points), -1)
+    renum = np.full(len(pts), -1)
     renum[used] = np.arange(len(used))
-    pts = np.asarray(m.points, dtype=float)[used]
-    if pts.shape[1] == 2:
-        raise ValueError(f"{path}: a 2D mesh; the fenicsx adapter needs volume cells in 3D")
-    cells = renum[cells]
-    dup = duplicate_nodes(pts)
-    if len(dup):
-        raise ValueError(f"{path}: {len(dup)} pairs of coincident nodes (e.g. nodes {dup[0, 0]} and {dup[0, 1]} at "
-                         f"{pts[dup[0, 0]].tolist()}): parts of the mesh are not connected; merge them")
-    if kinds[0] in ("hexahedron27", "hexahedron20"):
-        bad = tangled_cells(pts, cells, cells.shape[1])
-        if len(bad):
-            raise ValueError(f"{path}: {len(bad)} tangled (inverted) element(s), e.g. cell {bad[0]}: the "
-                             "Jacobian changes sign inside it")
-    return VolumeMesh(points=pts, cells=cells, cell_type=kinds[0], info={"file": str(path)})
+    return VolumeMesh(points=np.asarray(pts, dtype=float)[used], cells=renum[cells], cell_type=kinds[0],
+                      info={"file": str(path)})
 
 
 class FenicsxAdapter(FormsAdapter):
@@ -136,18 +136,25 @@ class FenicsxAdapter(FormsAdapter):
     def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
                     ) -> "FenicsxAdapter":
         p = parse_model(config, base_dir=Path(base_dir), scene_file=scene_file)
+        from stepnf.geometry.checks import units_warning
+
         mat = p["material"]
+        thickness = (p["geometry"] or {}).get("h")
         if p["mesh"] is None:
             g = dict(p["geometry"])
             try:
-                return cls.cap(g.pop("a"), g.pop("R"), g.pop("h"), element=p["element"],
-                               quadrature_degree=p["quadrature_degree"], **mat, **g)
+                ad = cls.cap(g.pop("a"), g.pop("R"), g.pop("h"), element=p["element"],
+                             quadrature_degree=p["quadrature_degree"], **mat, **g)
             except ValueError as exc:
                 raise SceneError(scene_file, "model.geometry", str(exc)) from exc
+            if getattr(ad, "mesh", None) is not None:
+                units_warning(ad.mesh.points, mat, source=scene_file, thickness=thickness)
+            return ad
         try:
             mesh = read_mesh(p["mesh"])
         except Exception as exc:  # meshio raises many kinds
             raise SceneError(scene_file, "model.mesh", f"cannot read {str(p['mesh'])!r}: {exc}") from exc
+        units_warning(mesh.points, mat, source=p["mesh"], thickness=thickness)
         return cls._class_for_world()(mesh, Material(**mat), geometry=p["geometry"],
                                       quadrature_degree=p["quadrature_degree"])
 

@@ -27,6 +27,11 @@ available; the mesh must then be placed like the generator's caps (apex at
 the origin, centre of curvature at ``(0, 0, -R)``, axis ``z``). Without them,
 labels use ``e_z`` as the normal and every node as the mid-surface (fine for
 plates), and the characteristic length is the smallest bounding-box extent.
+
+Allowed ranges (with their reasons) of the material, geometry and resolution
+keys are those of every cap model, in :mod:`stepnf.geometry.keys` (e.g. h >=
+a/1000, a generated mesh of at most 2 million dofs); ``quadrature_degree`` lies
+in [2, 12].
 """
 from __future__ import annotations
 
@@ -35,6 +40,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from stepnf.errors import SceneError, allowed
+from stepnf.scene import check_number, describe_value
 from stepnf.geometry import keys as cap_keys
 
 ELEMENTS = ("hex27", "tet10")
@@ -46,15 +52,10 @@ RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick")
 
 
 def _number(value: Any, file, key: str, *, allow_inf: bool = False) -> float:
+    """``value`` as a finite float (``inf`` when allowed, written ``"inf"``); ranges are the caller's."""
     if isinstance(value, str) and allow_inf and value.strip().lower() in ("inf", "infinity"):
         return math.inf
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        extra = ' or "inf"' if allow_inf else ""
-        raise SceneError(file, key, f"expected a number{extra}, got {value!r}")
-    value = float(value)
-    if math.isnan(value) or (math.isinf(value) and not allow_inf):
-        raise SceneError(file, key, f"expected a finite number, got {value!r}")
-    return value
+    return float(check_number(file, key, value, why=' (or "inf")' if allow_inf else ""))
 
 
 def _table(config: Mapping[str, Any], name: str, keys, file, *, required: bool = False) -> dict[str, Any]:
@@ -80,10 +81,10 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
                          f"{allowed(('solver',) + MODEL_KEYS)}")
     element = config.get("element", "hex27")
     if element not in ELEMENTS:
-        raise SceneError(f, "model.element", f"unknown element {element!r}. Pick one of {allowed(ELEMENTS)}")
+        raise SceneError(f, "model.element", f"unknown element {describe_value(element)}. Pick one of "
+                         f"{allowed(ELEMENTS)}")
     qd = config.get("quadrature_degree", 4)
-    if isinstance(qd, bool) or not isinstance(qd, int) or not 2 <= qd <= 12:
-        raise SceneError(f, "model.quadrature_degree", f"expected an integer in [2, 12], got {qd!r}")
+    check_number(f, "model.quadrature_degree", qd, integer=True, lo=2, hi=12)  # 12: exact for any used element
 
     if "material" not in config:
         raise SceneError(f, "model.material", f"missing table; a material needs {allowed(MATERIAL_KEYS)}")
@@ -93,12 +94,16 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
     geo = _table(config, "geometry", GEOMETRY_KEYS, f)
     mesh = config.get("mesh")
     if mesh is not None:
-        if not isinstance(mesh, str) or not mesh:
-            raise SceneError(f, "model.mesh", f"expected a file name, got {mesh!r}")
+        if not isinstance(mesh, str) or not mesh.strip() or "\x00" in mesh:
+            raise SceneError(f, "model.mesh", f"expected a file name, got {describe_value(mesh)}")
         path = Path(mesh)
         path = path if path.is_absolute() else Path(base_dir) / path
-        if not path.exists():
-            raise SceneError(f, "model.mesh", f"mesh file {str(path)!r} does not exist")
+        try:
+            is_file = path.is_file()
+        except OSError:  # a name too long for the file system
+            is_file = False
+        if not is_file:
+            raise SceneError(f, "model.mesh", f"mesh file {str(path)!r} does not exist (or is not a file)")
         if "shape" in geo or any(k in geo for k in RESOLUTION_KEYS + ("core",)):
             raise SceneError(f, "model.geometry", "give either model.mesh or a generated geometry "
                              "(model.geometry.shape and resolution keys), not both; with a mesh, "
@@ -119,14 +124,6 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
     if any(k in geo for k in ("a", "R", "h")):
         a, R, h = cap_keys.cap_dimensions(geo, f, what="the shell scaling (kappa, Gamma)")
         geometry = {"a": a, "R": R, "h": h}
-        for k in RESOLUTION_KEYS:
-            if k in geo:
-                geometry[k] = cap_keys.positive_int(geo, "model.geometry", k, f)
-        if "core" in geo:
-            c = _number(geo["core"], f, "model.geometry.core")
-            if not 0 < c < 1 / math.sqrt(2):
-                raise SceneError(f, "model.geometry.core", f"core half-width (fraction of a) must lie in "
-                                 f"(0, 0.707), got {c}")
-            geometry["core"] = c
+        geometry.update(cap_keys.cap_resolution(geo, f))  # ranges and the mesh-size limit of every cap
     return {"element": element, "material": {"E": E, "nu": nu, "rho": rho}, "geometry": geometry,
             "mesh": mesh, "quadrature_degree": qd}

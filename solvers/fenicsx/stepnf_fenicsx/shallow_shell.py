@@ -66,8 +66,9 @@ def _create_disk_mesh(points: np.ndarray, cells: np.ndarray):
 
     perm = np.asarray(cpp.io.perm_vtk(dmesh.CellType.triangle, 6))
     domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.triangle, 2))
-    return dmesh.create_mesh(_compat.comm_self(), np.ascontiguousarray(cells[:, perm], dtype=np.int64),
-                             np.ascontiguousarray(points, dtype=float), domain)
+    with _compat.quiet_jit():
+        return dmesh.create_mesh(_compat.comm_self(), np.ascontiguousarray(cells[:, perm], dtype=np.int64),
+                                 np.ascontiguousarray(points, dtype=float), domain)
 
 
 def _lattice(order: int) -> np.ndarray:
@@ -124,7 +125,8 @@ class ShallowShellAdapter(FormsAdapter):
         points, cells = disk_triangle6(float(a), self.n_rings, self.grading)
         self.n_cells = len(cells)
         msh = _create_disk_mesh(points, cells)
-        self._V = fem.VectorFunctionSpace(msh, ("Lagrange", int(degree)), dim=3)
+        with _compat.quiet_jit():
+            self._V = fem.VectorFunctionSpace(msh, ("Lagrange", int(degree)), dim=3)
         xyz, bs = _compat.dof_layout(self._V)
         assert bs == 3
         self._nodes = xyz[:, :2].copy()

@@ -51,7 +51,8 @@ def cell_diameters(msh):
     import numpy as np
     from dolfinx import fem
 
-    W = fem.FunctionSpace(msh, ("DG", 0))
+    with _compat.quiet_jit():
+        W = fem.FunctionSpace(msh, ("DG", 0))
     x = msh.geometry.x
     gdofs = np.asarray(msh.geometry.dofmap.array).reshape(-1, msh.geometry.dofmap.offsets[1])
     v = x[gdofs[:, :3]]  # the first three geometry nodes of a triangle are its vertices
@@ -94,7 +95,8 @@ class MarguerreForms(CubicForms):
         # expression): on curved cells a quadratic of x is not in P_k(reference), and only with the
         # interpolant are the rotations about e_x, e_y (v = -z0, w = y, ...) exact zero-energy fields
         deg = V.ufl_element().degree()
-        z0 = fem.Function(fem.FunctionSpace(msh, ("Lagrange", deg)))
+        with _compat.quiet_jit():
+            z0 = fem.Function(fem.FunctionSpace(msh, ("Lagrange", deg)))
         c_ = 0.0 if math.isinf(R) else 1.0 / R
         z0.interpolate(lambda x: -0.5 * c_ * (x[0] ** 2 + x[1] ** 2))
         self.z0 = z0
@@ -147,7 +149,8 @@ class MarguerreForms(CubicForms):
         jit = {"cache_dir": str(_compat.cache_dir()), "cffi_extra_compile_args": ["-O2"]}
         key = "jit_params" if "jit_params" in inspect.signature(fem.Expression.__init__).parameters \
             else "jit_options"
-        expr = fem.Expression(self.sample[2], np.ascontiguousarray(X, dtype=float), **{key: jit})
+        with _compat.quiet_jit():
+            expr = fem.Expression(self.sample[2], np.ascontiguousarray(X, dtype=float), **{key: jit})
         msh = self.V.mesh
         cells = np.arange(msh.topology.index_map(msh.topology.dim).size_local, dtype=np.int32)
 

@@ -1,0 +1,202 @@
+"""Write a file atomically: every file stepnf produces goes through here.
+
+One job: a file is either the complete new version or the untouched previous
+one, never a half-written mix, whatever happens (full disk, crash, two runs
+writing the same file). How:
+
+1. The content is built **in memory** first. HDF5 files are made by h5py on
+   an :class:`io.BytesIO` (:func:`hdf5_bytes`), so the HDF5 library never
+   writes to the disk itself (on a full disk it used to crash inside h5py
+   with a segmentation fault while closing the file).
+2. The bytes are written with plain Python I/O to a temporary file
+   ``.<name>.<random>.tmp`` in the target folder (same file system, so the
+   rename below is atomic), then ``fsync``-ed.
+3. ``os.replace`` puts it in place; the folder is ``fsync``-ed (best effort).
+
+Any failure removes the temporary file and raises :class:`OutputError`
+naming the file and the reason ("no space left on device", ...); the
+previous file, if any, is untouched.
+
+Permissions: a new file gets ``0666 & ~umask``, like any file the user
+creates (``tempfile.mkstemp`` would give 0600). A file that already exists
+keeps its permission bits (``rwx`` for user, group, others; not its owner,
+nor setuid/setgid bits) when it is replaced, as editors and ``sed -i`` do:
+a store made group-writable stays so.
+
+Versions: every stepnf HDF5 file carries root attributes ``format`` (what it
+is, e.g. ``"stepnf-run"``) and ``format_version`` (an integer, raised when
+the layout changes incompatibly). :func:`check_format` is the readers' side:
+it refuses a foreign file and a newer version with a :class:`StoreError`.
+"""
+from __future__ import annotations
+
+import errno as _errno
+import io
+import os
+import secrets
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from .errors import OutputError, StoreError
+
+__all__ = ["write_bytes", "hdf5_bytes", "write_hdf5", "check_format", "check_folder", "reason"]
+
+
+def reason(exc: BaseException) -> str:
+    """What went wrong, in words: ``"no space left on device (ENOSPC)"``."""
+    if isinstance(exc, OSError) and exc.errno is not None:
+        text = exc.strerror or os.strerror(exc.errno)
+        name = _errno.errorcode.get(exc.errno)
+        text = text[:1].lower() + text[1:]
+        return f"{text} ({name})" if name else text
+    return str(exc) or type(exc).__name__
+
+
+def _fsync_folder(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems cannot fsync a folder; the rename is done anyway
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what: str = "file",
+                mkdir: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (see the module docstring); return the path.
+
+    ``what`` names the file in error messages ("results file", "sweep store").
+    Raises :class:`OutputError` (with ``path`` and ``errno``) on any failure.
+    """
+    path = Path(path)
+    if path.is_symlink():  # replace the file the link points to, not the link
+        path = Path(os.path.realpath(path))
+    folder = path.parent
+    tmp = folder / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    fd = -1
+    try:
+        if mkdir:
+            folder.mkdir(parents=True, exist_ok=True)
+        try:
+            keep_mode = os.stat(path).st_mode & 0o777
+        except FileNotFoundError:
+            keep_mode = None
+        # O_EXCL: never write through someone else's file; 0o666: the umask applies
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+        if keep_mode is not None:
+            os.fchmod(fd, keep_mode)
+        view = memoryview(data).cast("B")
+        while view:
+            n = os.write(fd, view)
+            view = view[n:]
+        os.fsync(fd)
+        os.close(fd)
+        fd = -1
+        os.replace(tmp, path)
+    except BaseException as exc:
+        if fd >= 0:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(exc, OSError):
+            raise OutputError(f"cannot write the {what} {path}: {reason(exc)}", path=path,
+                              errno=exc.errno) from exc
+        raise
+    _fsync_folder(folder)
+    return path
+
+
+def hdf5_bytes(fill: Callable[[Any], None], *, format: str, format_version: int,
+               base: bytes | None = None) -> bytes:
+    """An HDF5 file built in memory: ``fill(h5py.File)`` adds the content.
+
+    ``format``/``format_version`` are set as root attributes. With ``base``
+    (the bytes of an existing file) the file is opened for update instead
+    of created empty.
+    """
+    import h5py
+
+    buf = io.BytesIO(base if base is not None else b"")
+    with h5py.File(buf, "r+" if base is not None else "w") as f:
+        fill(f)
+        f.attrs["format"] = format
+        f.attrs["format_version"] = int(format_version)
+    return buf.getvalue()
+
+
+def write_hdf5(path: str | Path, fill: Callable[[Any], None], *, format: str, format_version: int,
+               what: str = "HDF5 file") -> Path:
+    """Build an HDF5 file in memory with ``fill`` and write it atomically to ``path``."""
+    data = hdf5_bytes(fill, format=format, format_version=format_version)
+    return write_bytes(path, data, what=what)
+
+
+def _text(v: Any) -> Any:
+    return v.decode(errors="replace") if isinstance(v, bytes) else v
+
+
+def check_format(attrs: Any, path: str | Path, *, format: str, version: int, what: str,
+                 legacy: Iterable[str] = (), foreign_error: type[Exception] = StoreError) -> int:
+    """The ``format_version`` of a file whose root attributes are ``attrs``.
+
+    A file without ``format_version`` but with ``format`` equal to ``format``
+    or one of the ``legacy`` names was written before versions existed: its
+    layout is version 1. A foreign file raises ``foreign_error``, a newer
+    version a :class:`StoreError` that says to upgrade stepnf.
+    """
+    fmt = _text(attrs.get("format"))
+    if fmt != format and fmt not in tuple(legacy):
+        shown = "missing" if fmt is None else repr(fmt)
+        raise foreign_error(f"{path}: not a stepnf {what} (attribute 'format' is {shown}, "
+                            f"expected {format!r})")
+    raw = attrs.get("format_version")
+    if raw is None:
+        return 1
+    try:
+        found = int(raw)
+    except (TypeError, ValueError):
+        raise StoreError(f"{path}: {what} with an unreadable format_version {raw!r}") from None
+    if found > version:
+        raise StoreError(f"{path}: this {what} has format_version {found}, written by a newer stepnf; "
+                         f"this stepnf reads format_version {version} or older: upgrade stepnf to read it")
+    return found
+
+
+def check_folder(folder: str | Path) -> str | None:
+    """Why no file can be written into ``folder`` (created if missing), or ``None`` if one can.
+
+    Tried for real (a probe file created and removed), so a read-only mount,
+    missing permissions (also for root on a read-only file system) and a path
+    that is a file are all caught; a full disk is not (an empty file needs no
+    space), that is found when writing.
+    """
+    folder = Path(folder)
+    for p in (folder, *folder.parents):
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                return f"{p} is not a folder" + ("" if p == folder else f" (needed to create {folder})")
+            break
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        return f"cannot create the folder {folder}: {reason(exc)}"
+    probe = folder / f".stepnf-probe.{secrets.token_hex(4)}.tmp"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except OSError as exc:
+        return f"cannot write into the folder {folder}: {reason(exc)}"
+    os.close(fd)
+    try:
+        os.unlink(probe)
+    except OSError:
+        pass
+    return None

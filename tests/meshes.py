@@ -1,0 +1,25 @@
+"""Structured test meshes shared by the CalculiX and hostile-input tests."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def block_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 0.1), A: np.ndarray | None = None):
+    """Structured block of hex20 (VTK order), optionally mapped by the affine matrix ``A``.
+
+    Returns points (N, 3) and cells (E, 20), 0-based; face and body centres are left out.
+    """
+    corners = [(0, 0, 0), (2, 0, 0), (2, 2, 0), (0, 2, 0), (0, 0, 2), (2, 0, 2), (2, 2, 2), (0, 2, 2)]
+    edges = [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+    local = np.array(corners + [tuple((np.add(corners[i], corners[j])) // 2) for i, j in edges])
+    index: dict[tuple, int] = {}
+    cells = []
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                cells.append([index.setdefault(tuple(np.array([2 * i, 2 * j, 2 * k]) + d), len(index)) for d in local])
+    grid = np.array(sorted(index, key=index.get), dtype=float)
+    pts = grid / np.array([2 * nx, 2 * ny, 2 * nz]) * np.array(size)
+    if A is not None:
+        pts = pts @ np.asarray(A).T
+    return pts, np.array(cells)
