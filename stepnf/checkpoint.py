@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import io
 import shutil
-import sys
+import warnings
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from .atomic import write_bytes
-from .errors import OutputError
+from .errors import OutputError, OutputWarning
 
 
 def fingerprint(U: np.ndarray) -> np.ndarray:
@@ -33,22 +32,17 @@ def fingerprint(U: np.ndarray) -> np.ndarray:
     return np.column_stack([U @ w, np.linalg.norm(U, axis=1)])
 
 
-def _warn_stderr(text: str) -> None:
-    print(f"stepnf: warning: {text}", file=sys.stderr, flush=True)
-
-
 class Checkpoint:
     """A folder of atomically written chunks; see the module docstring.
 
-    ``warn`` receives the one message sent when checkpointing is disabled
-    (default: printed on stderr).
+    When a chunk cannot be written, one :class:`stepnf.errors.OutputWarning` says so (the CLI
+    prints it as "stepnf: warning: ...") and no chunk is stored any more.
     """
 
-    def __init__(self, folder: str | Path, warn: Callable[[str], None] | None = None):
+    def __init__(self, folder: str | Path):
         self.folder = Path(folder)
         self.reused = 0
         self.disabled: str | None = None  # why chunks are no longer stored
-        self._warn = warn or _warn_stderr
 
     def _path(self, plan: str, index: int) -> Path:
         return self.folder / f"{plan}_{index:06d}.npz"
@@ -85,8 +79,9 @@ class Checkpoint:
                 if attempt == 0 and isinstance(exc.__cause__, FileNotFoundError):
                     continue
                 self.disabled = str(exc)
-                self._warn(f"checkpointing disabled: {exc}; the run goes on without checkpoints "
-                           "(an interrupted run will start again from the beginning)")
+                warnings.warn(f"checkpointing disabled: {exc}; the run goes on without checkpoints "
+                              "(an interrupted run will start again from the beginning)", OutputWarning,
+                              stacklevel=2)
                 return
 
     def discard(self) -> None:

@@ -1,4 +1,5 @@
-"""Indicators and flags around the evaluators: coupling, slow/fast ratio, 1:2 check, modal truncation.
+"""Indicators and flags around the evaluators: coupling, slow/fast ratio, 1:2 check, modal truncation,
+soft modes counted rigid, and overflow turned into a :class:`~stepnf.errors.NumericalError`.
 
 Each says something the numbers alone do not: which slave modes the master
 really drives (the coupling floor), how far the slow/fast assumption of the
@@ -8,6 +9,7 @@ quadratic force the modal sums can see.
 """
 from __future__ import annotations
 
+import contextlib
 from typing import Sequence
 
 import numpy as np
@@ -308,3 +310,38 @@ def conditioning_flags(basis: ModalBasis, K: sp.spmatrix, M: sp.spmatrix,
     if smooth is not None:
         lam = min(lam, smooth)
     return check_conditioning(conditioning_ratio(lam, K, M))
+
+
+def captured_share(p: int, st, full, g_all: np.ndarray, S, M: sp.spmatrix) -> float | None:
+    """Share of ``G(phi_p, phi_p)`` the retained modes ``S`` carry (targeted or full STEP), or None."""
+    if st is not None:
+        return captured_fraction(st.Gv, g_all[S], M)
+    if full is None:
+        return None
+    cols = list(full.modes)
+    if p not in cols or cols.index(p) not in full.g_norm2:
+        return None
+    j = cols.index(p)
+    g = np.zeros(len(g_all))
+    g[full.modes] = full.g[:, j, j]
+    return captured_fraction_of_norm(g[S], full.g_norm2[j])
+
+
+@contextlib.contextmanager
+def overflow_is_numerical(where: dict, steps: dict):
+    """Floating-point overflow in the evaluators becomes a :class:`NumericalError` naming the stage.
+
+    ``where`` is updated by the caller with the master mode and method being
+    evaluated; ``steps`` (master -> :class:`MasterStep`) gives the size of the
+    STEP coefficients for the message. Exact resonances are not overflows
+    (singular solves and zero denominators are flagged by the evaluators).
+    """
+    try:
+        with np.errstate(over="raise"):
+            yield
+    except (FloatingPointError, OverflowError) as exc:
+        big = max((float(np.abs(st.Gv).max()) for st in steps.values()), default=float("nan"))
+        at = ", ".join(f"{k} {v}" for k, v in where.items())
+        raise NumericalError(f"{at}: floating-point overflow ({exc}): the STEP coefficients (largest "
+                             f"|G(phi_p, phi_p)| entry {big:.1e}) are beyond double precision's range; check "
+                             "the model's units and the forces the solver returns") from exc

@@ -109,3 +109,7 @@ class UnitsWarning(UserWarning):
 
 class ModelWarning(UserWarning):
     """The model computes, but something in it deserves a look (e.g. elastic modes counted as rigid)."""
+
+
+class OutputWarning(UserWarning):
+    """Something optional could not be written (a checkpoint chunk); the run goes on without it."""

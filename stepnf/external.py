@@ -453,16 +453,26 @@ def missing_output(workdir: str | Path, message: str, *, log_name: str = "solver
     return SolverRunError(message, workdir=workdir, log_tail=log_tail(workdir / log_name))
 
 
+#: Ranges of the run settings: a time-out above 1e7 s (four months) is no time-out, no machine has
+#: more than 1024 cores for one solver run, 256 solver runs at once already exceed any node's memory,
+#: and 2^24 MB is 16 TiB. An integer setting not listed here only has to be >= 1.
+RUN_RANGES: dict[str, tuple[float, float]] = {"timeout": (0.0, 1e7), "threads": (1, 1024), "ncpus": (1, 1024),
+                                              "parallel_runs": (1, 256), "memory_mb": (1, 2**24)}
+
+
 def run_keys(config: Mapping[str, Any], base_dir: Path, scene_file, ints: Sequence[str] = ("parallel_runs",)
              ) -> dict[str, Any]:
     """The run settings every external adapter takes from ``[model]``: ``timeout`` (s), ``workdir``
-    (relative to the scene), ``keep`` (one of :data:`KEEP_POLICIES`) and the positive integers ``ints``."""
+    (relative to the scene), ``keep`` (one of :data:`KEEP_POLICIES`) and the integers ``ints``, each
+    within :data:`RUN_RANGES`."""
     from .errors import SceneError, allowed
-    from .geometry.keys import positive_int, positive_number
+    from .scene import check_number
 
     run: dict[str, Any] = {}
     if "timeout" in config:
-        run["timeout"] = positive_number(config, "model", "timeout", scene_file)
+        lo, hi = RUN_RANGES["timeout"]
+        run["timeout"] = float(check_number(scene_file, "model.timeout", config["timeout"], lo=lo, hi=hi,
+                                            lo_open=True, why=" (seconds)"))
     if "workdir" in config:
         run["workdir"] = Path(base_dir) / str(config["workdir"])
     if "keep" in config:
@@ -471,5 +481,6 @@ def run_keys(config: Mapping[str, Any], base_dir: Path, scene_file, ints: Sequen
         run["keep"] = config["keep"]
     for key in ints:
         if key in config:
-            run[key] = positive_int(config, "model", key, scene_file)
+            lo, hi = RUN_RANGES.get(key, (1, None))
+            run[key] = int(check_number(scene_file, f"model.{key}", config[key], integer=True, lo=lo, hi=hi))
     return run

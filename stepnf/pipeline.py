@@ -7,7 +7,6 @@ whatever the model size; the full STEP over the retained modes runs only when
 """
 from __future__ import annotations
 
-import contextlib
 import time
 import warnings
 from dataclasses import asdict, replace
@@ -21,17 +20,17 @@ from .backbone import MethodResult
 from .checkpoint import Checkpoint
 from .counters import Counters
 from .deflation import DeflatedSolver
-from .diagnostics import (captured_fraction, captured_fraction_of_norm, check_conditioning, conditioning_flags,
-                          conditioning_ratio, coupling_floor, floor_scale, inverse_mass_norm2, merge_flags, one_two_flags,
+from .diagnostics import (captured_share, check_conditioning, conditioning_flags, conditioning_ratio, coupling_floor,
+                          floor_scale, inverse_mass_norm2, merge_flags, one_two_flags, overflow_is_numerical,
                           slow_fast_ratio, smooth_eigenvalue, soft_mode_flags, t_error, truncation_flags)
-from .errors import ModelWarning, NumericalError, SceneError
+from .errors import ModelWarning, SceneError
 from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
                          nf_modal, retained_set, smd_full, smd_modal)
 from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
 from .modal import (ModalBasis, lambda_scale, modal_analysis, orient_degenerate, probe_vector,
                     rigid_body_fields)
 from .modal_model import ModalModel
-from .plan import resolve_masters, resolve_methods
+from .plan import check_elastic_modes, check_rigid_count, resolve_masters, resolve_methods
 from .progress import Progress
 from .registry import get_solver
 from .results import ModeResult, RunResult, write_hdf5
@@ -69,63 +68,6 @@ def _modal_method(name: str, p: int, omega, g, h, S, tol, labels, floor=None) ->
     if name == "smd_modal":
         return smd_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
     raise KeyError(name)
-
-
-@contextlib.contextmanager
-def overflow_is_numerical(where: dict, steps: dict):
-    """Floating-point overflow in the evaluators becomes a :class:`NumericalError` naming the stage.
-
-    ``where`` is updated by the caller with the master mode and method being
-    evaluated; ``steps`` (master -> :class:`MasterStep`) gives the size of the
-    STEP coefficients for the message. Exact resonances are not overflows
-    (singular solves and zero denominators are flagged by the evaluators).
-    """
-    try:
-        with np.errstate(over="raise"):
-            yield
-    except (FloatingPointError, OverflowError) as exc:
-        big = max((float(np.abs(st.Gv).max()) for st in steps.values()), default=float("nan"))
-        at = ", ".join(f"{k} {v}" for k, v in where.items())
-        raise NumericalError(f"{at}: floating-point overflow ({exc}): the STEP coefficients (largest "
-                             f"|G(phi_p, phi_p)| entry {big:.1e}) are beyond double precision's range; check "
-                             "the model's units and the forces the solver returns") from exc
-
-
-def check_rigid_count(scene: Scene, n: int) -> None:
-    """``analysis.rigid_modes`` must leave elastic modes: at most ``n - 1`` of the model's ``n`` dofs."""
-    if scene.rigid_modes is not None and scene.rigid_modes >= n:
-        raise SceneError(scene.file, "analysis.rigid_modes",
-                         f"{scene.rigid_modes} rigid-body modes asked for, but the model has only {n} dofs: "
-                         f"allowed 0..{n - 1} (or \"auto\")")
-
-
-def check_elastic_modes(scene: Scene, basis: ModalBasis) -> None:
-    """A model with no elastic mode (K zero, or every mode counted rigid) is refused, naming why."""
-    if basis.n_elastic or not basis.rigid.shape[1]:
-        return
-    if scene.rigid_modes is not None:
-        raise SceneError(scene.file, "analysis.rigid_modes",
-                         f"rigid_modes = {scene.rigid_modes} leaves no elastic mode among the "
-                         f"{basis.rigid.shape[1]} computed; allowed: fewer rigid modes, or \"auto\"")
-    raise NumericalError(f"the model has no elastic mode: all {basis.rigid.shape[1]} computed modes have "
-                         f"|w^2| <= analysis.rigid_tolerance ({scene.rigid_tolerance:g}) x lambda_max, so the "
-                         "stiffness matrix K is zero or nearly so for the solver's model ([model] of "
-                         f"{scene.where()}); check K, the material's Young's modulus and the units")
-
-
-def _captured_fraction(p: int, st, full, g_all: np.ndarray, S, M: sp.spmatrix) -> float | None:
-    """Share of ``G(phi_p, phi_p)`` the retained modes ``S`` carry (targeted or full STEP), or None."""
-    if st is not None:
-        return captured_fraction(st.Gv, g_all[S], M)
-    if full is None:
-        return None
-    cols = list(full.modes)
-    if p not in cols or cols.index(p) not in full.g_norm2:
-        return None
-    j = cols.index(p)
-    g = np.zeros(len(g_all))
-    g[full.modes] = full.g[:, j, j]
-    return captured_fraction_of_norm(g[S], full.g_norm2[j])
 
 
 def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = True) -> RunResult:
@@ -300,11 +242,10 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     omega, Phi = basis.omega, basis.phi
     m = basis.n_elastic
     run_flags: list[dict] = conditioning_flags(basis, K, M, smooth)
-    if scene.rigid_modes is None:
-        run_flags += soft_mode_flags(basis.rigid_eigenvalues, lambda_scale(K, M), scene.rigid_tolerance)
-    for fl in run_flags:
-        if fl["kind"] == "soft_modes_counted_rigid":
+    if scene.rigid_modes is None:  # a count the user gave is theirs to keep
+        for fl in soft_mode_flags(basis.rigid_eigenvalues, lambda_scale(K, M), scene.rigid_tolerance):
             warnings.warn(fl["message"], ModelWarning, stacklevel=2)
+            run_flags.append(fl)
     if needs_modal and m < n_ret:
         run_flags.append({"kind": "fewer_modes", "message": f"only {m} elastic modes available, "
                           f"{n_ret} asked for in the modal sums"})
@@ -411,7 +352,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     if g_chk is not None:
                         r2 = _modal_method(ev, p, omega, g_chk, h_chk, S, tol, labels, floor)
                         r.T_error = t_error(r.T, r2.T)
-                    frac = _captured_fraction(p, st, full, g_all, S, M)
+                    frac = captured_share(p, st, full, g_all, S, M)
                     if frac is not None:
                         r.flags += truncation_flags(r, frac, len(S))
                 elif ev == "dnf":

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-from .errors import SceneError
+from .errors import NumericalError, SceneError
 from .results import label_text
+from .modal import ModalBasis
 from .scene import Scene, parse_label
 
 
@@ -57,3 +58,25 @@ def resolve_masters(scene: Scene, labels: Sequence[Any], n_modes: int, *, comple
     if len(set(out)) != len(out):
         raise SceneError(scene.file, "analysis.master_modes", f"two entries name the same mode: {out}")
     return out
+
+
+def check_rigid_count(scene: Scene, n: int) -> None:
+    """``analysis.rigid_modes`` must leave elastic modes: at most ``n - 1`` of the model's ``n`` dofs."""
+    if scene.rigid_modes is not None and scene.rigid_modes >= n:
+        raise SceneError(scene.file, "analysis.rigid_modes",
+                         f"{scene.rigid_modes} rigid-body modes asked for, but the model has only {n} dofs: "
+                         f"allowed 0..{n - 1} (or \"auto\")")
+
+
+def check_elastic_modes(scene: Scene, basis: ModalBasis) -> None:
+    """A model with no elastic mode (K zero, or every mode counted rigid) is refused, naming why."""
+    if basis.n_elastic or not basis.rigid.shape[1]:
+        return
+    if scene.rigid_modes is not None:
+        raise SceneError(scene.file, "analysis.rigid_modes",
+                         f"rigid_modes = {scene.rigid_modes} leaves no elastic mode among the "
+                         f"{basis.rigid.shape[1]} computed; allowed: fewer rigid modes, or \"auto\"")
+    raise NumericalError(f"the model has no elastic mode: all {basis.rigid.shape[1]} computed modes have "
+                         f"|w^2| <= analysis.rigid_tolerance ({scene.rigid_tolerance:g}) x lambda_max, so the "
+                         "stiffness matrix K is zero or nearly so for the solver's model ([model] of "
+                         f"{scene.where()}); check K, the material's Young's modulus and the units")

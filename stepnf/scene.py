@@ -33,7 +33,7 @@ Every key is checked when the file is read, with its allowed range (the
 constants below give each range and its reason): a wrong type, a value out of
 range or a file that is not UTF-8 TOML is a :class:`~stepnf.errors.SceneError`
 naming the file and the key (exit code 2). :func:`check_number`,
-:func:`check_bool` and :func:`check_name` are the checks adapters reuse for
+:func:`check_bool`, :func:`check_text` and :func:`check_name` are the checks adapters reuse for
 their own ``[model]`` keys, and :func:`read_toml` reads every TOML file stepnf
 takes (scenes, sweeps).
 """
@@ -176,6 +176,15 @@ def check_bool(file: str | Path | None, key: str, value: Any) -> bool:
     """``value`` if it is true or false; else a SceneError."""
     if not isinstance(value, bool):
         raise SceneError(file, key, f"expected true or false, got {describe_value(value)}")
+    return value
+
+
+def check_text(file: str | Path | None, key: str, value: Any, what: str, max_len: int = 4096) -> str:
+    """``value`` if it is a non-empty string without NUL of at most ``max_len`` characters (a file or folder
+    name, a command, an address); else a SceneError saying ``what`` was expected."""
+    if not isinstance(value, str) or not value.strip() or "\x00" in value or len(value) > max_len:
+        raise SceneError(file, key, f"expected {what} (a non-empty string without NUL, at most {max_len} "
+                         f"characters), got {describe_value(value)}")
     return value
 
 
@@ -386,10 +395,7 @@ def _output(f, out: Any, sc: Scene) -> None:
     if not isinstance(out, Mapping):
         raise SceneError(f, "output", f"expected a table [output], got {describe_value(out)}")
     _unknown(f, "output", out, OUTPUT_KEYS)
-    d = out.get("dir", "results")
-    if not isinstance(d, str) or not d.strip() or "\x00" in d or len(d) > 4096:
-        raise SceneError(f, "output.dir", f"expected a folder path (a non-empty string without NUL, at most "
-                         f"4096 characters), got {describe_value(d)}")
+    d = check_text(f, "output.dir", out.get("dir", "results"), "a folder path")
     sc.output_dir = Path(d) if Path(d).is_absolute() else sc.base_dir / d
     # the default, the scene's own file stem, has no '/' and stays inside the folder
     sc.output_name = check_name(f, "output.name", out["name"]) if "name" in out else (f.stem if f else "stepnf")

@@ -133,10 +133,9 @@ def load_sweep(path: str | Path) -> Sweep:
 
 
 def _text(path: Path, key: str, value: Any, what: str) -> str:
-    """A non-empty string without NUL (a file name, an address)."""
-    if not isinstance(value, str) or not value.strip() or "\x00" in value or len(value) > 4096:
-        raise SceneError(path, key, f"expected {what} (a non-empty string), got {_shown(value)}")
-    return value
+    from .scene import check_text
+
+    return check_text(path, key, value, what)
 
 
 def _shown(value: Any) -> str:

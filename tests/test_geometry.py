@@ -57,7 +57,7 @@ def test_midsurface_on_sphere_and_through_thickness(R):
     assert mesh.n_points == 5 * int(mesh.midsurface.sum())
 
 
-@pytest.mark.parametrize("n_nodes", [20, 27])
+@pytest.mark.parametrize("n_nodes", [8, 20, 27])
 def test_shape_functions_partition_of_unity_and_kronecker(n_nodes):
     from stepnf.geometry.hexahedra import HEX27_NODES
 

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import MeshError, UnitsWarning
-from .hexahedra import HEX27_NODES, gauss_points, shape_functions
+from .hexahedra import HEX27_NODES, determinants, gauss_points, shape_functions
 
 #: Cell types the checker knows (meshio names) and their number of nodes.
 CELL_NODES = {"tetra": 4, "tetra10": 10, "hexahedron": 8, "hexahedron20": 20, "hexahedron27": 27,
@@ -82,25 +82,11 @@ def _tet_shape(xi: np.ndarray, n_nodes: int) -> np.ndarray:
     return dN
 
 
-def _hex8_shape(xi: np.ndarray) -> np.ndarray:
-    """Reference gradients dN (q, 8, 3) of the trilinear hexahedron on [0, 1]^3, VTK order."""
-    xi = np.atleast_2d(xi)
-    dN = np.empty((len(xi), 8, 3))
-    for a, c in enumerate(HEX27_NODES[:8]):
-        f = [xi[:, d] if c[d] else 1 - xi[:, d] for d in range(3)]
-        df = [1.0 if c[d] else -1.0 for d in range(3)]
-        for d in range(3):
-            dN[:, a, d] = df[d] * np.prod([f[e] for e in range(3) if e != d], axis=0)
-    return dN
-
-
 def _samples(cell_type: str) -> tuple[np.ndarray, np.ndarray] | None:
     """Sample points and reference gradients dN (q, n, 3) for the Jacobian checks (None: not checked)."""
     if cell_type.startswith("hexahedron"):
         xi_g, _ = gauss_points(4 if cell_type != "hexahedron" else 2)
         xi = np.vstack([xi_g, HEX27_NODES if cell_type != "hexahedron" else HEX27_NODES[:8]])
-        if cell_type == "hexahedron":
-            return xi, _hex8_shape(xi)
         return xi, shape_functions(xi, CELL_NODES[cell_type])[1]
     if cell_type.startswith("tetra"):
         corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
@@ -116,9 +102,7 @@ def jacobian_determinants(points: np.ndarray, cells: np.ndarray, cell_type: str)
     s = _samples(cell_type)
     if s is None:
         return None
-    _, dN = s
-    J = np.einsum("enk,qnd->eqkd", points[cells], dN)
-    return np.linalg.det(J)
+    return determinants(points, cells, s[1])
 
 
 # --------------------------------------------------------------------------- checks

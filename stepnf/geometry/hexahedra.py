@@ -47,7 +47,23 @@ def shape_functions(xi: np.ndarray, n_nodes: int = 27) -> tuple[np.ndarray, np.n
         return N, dN
     if n_nodes == 20:
         return _serendipity20(xi)
-    raise ValueError(f"Unknown quadratic hexahedron with {n_nodes} nodes. Pick one of [20, 27]")
+    if n_nodes == 8:
+        return _trilinear8(xi)
+    raise ValueError(f"Unknown hexahedron with {n_nodes} nodes. Pick one of [8, 20, 27]")
+
+
+def _trilinear8(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The linear hexahedron (corners ``HEX27_NODES[:8]``, VTK order)."""
+    q = len(xi)
+    N = np.empty((q, 8))
+    dN = np.empty((q, 8, 3))
+    for a, c in enumerate(HEX27_NODES[:8]):
+        f = [xi[:, d] if c[d] else 1 - xi[:, d] for d in range(3)]
+        df = [1.0 if c[d] else -1.0 for d in range(3)]
+        N[:, a] = f[0] * f[1] * f[2]
+        for d in range(3):
+            dN[:, a, d] = df[d] * np.prod([f[e] for e in range(3) if e != d], axis=0)
+    return N, dN
 
 
 def _serendipity20(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -85,10 +101,12 @@ def gauss_points(order: int = 3) -> tuple[np.ndarray, np.ndarray]:
 
 def jacobians(points: np.ndarray, cells: np.ndarray, xi: np.ndarray) -> np.ndarray:
     """Jacobian determinants ``(E, q)`` of every cell at reference points ``xi (q, 3)``."""
-    _, dN = shape_functions(xi, cells.shape[1])
-    X = points[cells]  # (E, n, 3)
-    J = np.einsum("enk,qnd->eqkd", X, dN)
-    return np.linalg.det(J)
+    return determinants(points, cells, shape_functions(xi, cells.shape[1])[1])
+
+
+def determinants(points: np.ndarray, cells: np.ndarray, dN: np.ndarray) -> np.ndarray:
+    """``det J`` (E, q) of every cell from the reference gradients ``dN`` (q, n, 3) of any element."""
+    return np.linalg.det(np.einsum("enk,qnd->eqkd", points[cells], dN))
 
 
 def volume(points: np.ndarray, cells: np.ndarray, order: int = 4) -> float:

@@ -11,7 +11,7 @@ import math
 from typing import Any, Mapping, Sequence
 
 from ..errors import SceneError, allowed
-from ..scene import check_number, describe_value
+from ..scene import check_number, check_text, describe_value
 from .cap import DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
 
 MATERIAL_KEYS = ("E", "nu", "rho")
@@ -48,33 +48,19 @@ def check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene
         raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
 
 
-def _is_inf(v: Any) -> bool:
-    return isinstance(v, str) and v.strip().lower() in ("inf", "infinity")
+def finite_or_inf(scene_file, key: str, value: Any, *, allow_inf: bool = False,
+                  lo: float | None = None, hi: float | None = None) -> float:
+    """``value`` as a finite float in ``[lo, hi]`` (or ``inf`` when allowed, written ``"inf"``)."""
+    if allow_inf and isinstance(value, str) and value.strip().lower() in ("inf", "infinity"):
+        return math.inf
+    why = ' (or "inf")' if allow_inf else ""
+    return float(check_number(scene_file, key, value, lo=lo, hi=hi, why=why))
 
 
 def number(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False,
            lo: float | None = None, hi: float | None = None) -> float:
-    """``table[key]`` as a finite float in ``[lo, hi]`` (or ``inf`` when allowed, written ``"inf"``)."""
-    v = table.get(key)
-    if allow_inf and _is_inf(v):
-        return math.inf
-    why = ' (or "inf")' if allow_inf else ""
-    return float(check_number(scene_file, f"{where}.{key}", v, lo=lo, hi=hi, why=why))
-
-
-def positive_int(table: Mapping[str, Any], where: str, key: str, scene_file, *, hi: int | None = None) -> int:
-    """``table[key]`` as an integer >= 1 (and <= ``hi`` when given)."""
-    return int(check_number(scene_file, f"{where}.{key}", table.get(key), integer=True, lo=1, hi=hi))
-
-
-def positive_number(table: Mapping[str, Any], where: str, key: str, scene_file, *,
-                    allow_inf: bool = False, hi: float | None = None) -> float:
-    """``table[key]`` as a float > 0 (and <= ``hi`` when given; ``inf`` when allowed, written ``"inf"``)."""
-    v = table.get(key)
-    if allow_inf and _is_inf(v):
-        return math.inf
-    why = ' (or "inf")' if allow_inf else ""
-    return float(check_number(scene_file, f"{where}.{key}", v, lo=0, hi=hi, lo_open=True, why=why))
+    """``table[key]`` as :func:`finite_or_inf` checks it."""
+    return finite_or_inf(scene_file, f"{where}.{key}", table.get(key), allow_inf=allow_inf, lo=lo, hi=hi)
 
 
 def material(config: Mapping[str, Any], scene_file, *, required: bool = True) -> dict[str, float]:
@@ -178,24 +164,6 @@ def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
     return {"shape": shape, "a": a, "R": R, "h": h, "resolution": cap_resolution(geom, scene_file)}
 
 
-#: Run settings of the external adapters (read by :func:`stepnf.external.run_keys`): a time-out above
-#: 1e7 s (four months) is no time-out, no machine has more than 1024 cores for one solver run, 256
-#: solver runs at once already exceed any node's memory, and 2^24 MB is 16 TiB.
-RUN_RANGES: dict[str, tuple[float, float]] = {"timeout": (0.0, 1e7), "threads": (1, 1024), "ncpus": (1, 1024),
-                                              "parallel_runs": (1, 256), "memory_mb": (1, 2**24)}
-
-
-def run_limits(run: Mapping[str, Any], scene_file) -> None:
-    """Refuse run settings (``model.timeout``, ``model.threads``...) outside :data:`RUN_RANGES`."""
-    for key, (lo, hi) in RUN_RANGES.items():
-        if key in run:
-            check_number(scene_file, f"model.{key}", run[key], integer=key != "timeout", lo=lo, hi=hi,
-                         lo_open=key == "timeout", why=" (seconds)" if key == "timeout" else "")
-
-
 def text_value(config: Mapping[str, Any], key: str, scene_file, what: str = "a file name") -> str:
     """``config[key]`` as a non-empty string without NUL (a file or folder name, a command)."""
-    v = config.get(key)
-    if not isinstance(v, str) or not v.strip() or "\x00" in v:
-        raise SceneError(scene_file, f"model.{key}", f"expected {what} (a non-empty string), got {describe_value(v)}")
-    return v
+    return check_text(scene_file, f"model.{key}", config.get(key), what)

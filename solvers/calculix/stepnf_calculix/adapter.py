@@ -251,7 +251,6 @@ def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:
 def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapter:
     cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
     run = run_keys(config, base_dir, scene_file, ints=("threads", "parallel_runs"))
-    cap_keys.run_limits(run, scene_file)
     if "executable" in config:
         run["executable"] = cap_keys.text_value(config, "executable", scene_file, "an executable name or path")
     if "template" in config:

@@ -247,7 +247,6 @@ def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdap
                 raise SceneError(scene_file, f"model.{key}", f"expected a non-empty string, got {config[key]!r}")
             kw[key] = config[key]
     kw.update(run_keys(config, base_dir, scene_file, ints=("ncpus", "memory_mb", "parallel_runs")))
-    cap_keys.run_limits(kw, scene_file)
     if "templates" in config:
         folder = base_dir / cap_keys.text_value(config, "templates", scene_file, "a folder name")
         if not folder.is_dir():

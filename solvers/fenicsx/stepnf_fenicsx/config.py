@@ -35,12 +35,11 @@ in [2, 12].
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any, Mapping
 
 from stepnf.errors import SceneError, allowed
-from stepnf.scene import check_number, describe_value
+from stepnf.scene import check_number, check_text, describe_value
 from stepnf.geometry import keys as cap_keys
 
 ELEMENTS = ("hex27", "tet10")
@@ -49,13 +48,6 @@ MODEL_KEYS = ("element", "geometry", "material", "mesh", "quadrature_degree")
 GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_core", "n_ring", "n_thick", "core")
 MATERIAL_KEYS = ("E", "nu", "rho")
 RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick")
-
-
-def _number(value: Any, file, key: str, *, allow_inf: bool = False) -> float:
-    """``value`` as a finite float (``inf`` when allowed, written ``"inf"``); ranges are the caller's."""
-    if isinstance(value, str) and allow_inf and value.strip().lower() in ("inf", "infinity"):
-        return math.inf
-    return float(check_number(file, key, value, why=' (or "inf")' if allow_inf else ""))
 
 
 def _table(config: Mapping[str, Any], name: str, keys, file, *, required: bool = False) -> dict[str, Any]:
@@ -94,8 +86,7 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
     geo = _table(config, "geometry", GEOMETRY_KEYS, f)
     mesh = config.get("mesh")
     if mesh is not None:
-        if not isinstance(mesh, str) or not mesh.strip() or "\x00" in mesh:
-            raise SceneError(f, "model.mesh", f"expected a file name, got {describe_value(mesh)}")
+        check_text(f, "model.mesh", mesh, "a mesh file name")
         path = Path(mesh)
         path = path if path.is_absolute() else Path(base_dir) / path
         try:

@@ -32,7 +32,7 @@ from stepnf.errors import SceneError, allowed
 from stepnf.geometry import keys as cap_keys
 from stepnf.scene import check_bool, check_number, describe_value
 
-from .config import _number, _table  # one parser for both FEniCSx models
+from .config import _table  # one parser for both FEniCSx models
 
 MODEL_KEYS = ("geometry", "material", "inplane_inertia", "penalty", "degree", "quadrature_degree")
 GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_rings", "grading")
@@ -55,7 +55,7 @@ def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, A
     out: dict[str, Any] = {}
     out["inplane_inertia"] = check_bool(f, "model.inplane_inertia", config.get("inplane_inertia",
                                                                               DEFAULTS["inplane_inertia"]))
-    pen = _number(config.get("penalty", DEFAULTS["penalty"]), f, "model.penalty")
+    pen = cap_keys.finite_or_inf(f, "model.penalty", config.get("penalty", DEFAULTS["penalty"]))
     if not 2.0 <= pen <= 1000.0:
         raise SceneError(f, "model.penalty", f"interior-penalty factor must lie in [2, 1000], got {pen}")
     out["penalty"] = pen
@@ -80,7 +80,7 @@ def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, A
     a, R, h = cap_keys.cap_dimensions(geo, f, what="a shallow shell")
     # about 81 n_rings^2 dofs with P3 (11 991 at 12 rings): 200 rings is 3.2 million, the ceiling of the 3D caps
     nr = check_number(f, "model.geometry.n_rings", geo.get("n_rings", DEFAULTS["n_rings"]), integer=True, lo=2, hi=200)
-    gr = _number(geo.get("grading", DEFAULTS["grading"]), f, "model.geometry.grading")
+    gr = cap_keys.finite_or_inf(f, "model.geometry.grading", geo.get("grading", DEFAULTS["grading"]))
     if not 0.0 < gr <= 1.0:
         raise SceneError(f, "model.geometry.grading", f"outer/mean ring spacing must lie in (0, 1], got {gr}")
     out.update(a=a, R=R, h=h, n_rings=nr, grading=gr)

@@ -21,6 +21,7 @@ from numpy.lib import format as npy_format
 
 from stepnf.adapter import DIRECTIONS, SolverAdapter
 from stepnf.errors import SceneError
+from stepnf.scene import check_text
 
 REQUIRED = ("M", "K", "G", "H")
 OPTIONAL = ("coordinates", "directions", "length")
@@ -191,10 +192,10 @@ class PolynomialAdapter(SolverAdapter):
         if M.ndim != 2 or M.shape[0] != M.shape[1] or not M.shape[0]:
             raise ValueError(f"{source}: array M has shape {M.shape}, expected a non-empty square matrix (n, n)")
         n = M.shape[0]
-        shapes = {"M": (n, n), "K": (n, n), "G": (n, n, n), "H": (n, n, n, n)}
+        shapes = expected_shapes(n)
         for key, arr in (("M", M), ("K", K), ("G", np.asarray(G)), ("H", np.asarray(H))):
-            if arr.shape != shapes[key]:
-                raise ValueError(f"{source}: array {key} has shape {arr.shape}, expected {shapes[key]}")
+            if arr.shape not in shapes[key]:
+                raise ValueError(f"{source}: array {key} has shape {arr.shape}, expected {shapes[key][0]}")
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"{source}: array {key} contains NaN or inf")
         self._M = M
@@ -213,11 +214,8 @@ class PolynomialAdapter(SolverAdapter):
         if "file" not in config:
             raise SceneError(scene_file, "model.file", "solver 'polynomial' needs the key 'file' "
                              "(an .npz or HDF5 file with arrays M, K, G, H)")
-        name = config["file"]
-        if not isinstance(name, str) or not name.strip() or "\x00" in name:
-            raise SceneError(scene_file, "model.file", f"expected a file name (a string, relative to the scene), "
-                             f"got {name!r} ({type(name).__name__}); an .npz or HDF5 file with arrays M, K, G, H")
-        path = Path(name)
+        path = Path(check_text(scene_file, "model.file", config["file"], "the name of an .npz or HDF5 file with "
+                               "arrays M, K, G, H, relative to the scene"))
         if not path.is_absolute():
             path = Path(base_dir) / path
         try:
