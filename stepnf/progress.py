@@ -24,12 +24,15 @@ class Progress:
     def stage(self, key: str, text: str) -> Iterator[None]:
         t0 = time.perf_counter()
         self.message(f"{text} ...")
+        finished = False
         try:
             yield
+            finished = True
         finally:
             dt = time.perf_counter() - t0
             self.timings[key] = self.timings.get(key, 0.0) + dt
-            self.message(f"{text}: done in {dt:.2f} s")
+            # a stage that raised is not "done": the error message follows
+            self.message(f"{text}: {'done' if finished else 'stopped'} in {dt:.2f} s")
 
     def bar(self, done: int, total: int, text: str = "") -> None:
         """A one-line progress bar, redrawn at most every 0.5 s."""

@@ -244,3 +244,13 @@ def test_fig4_of_a_file_that_is_not_a_sweep_store(tmp_path, capsys):
     for bad in (tmp_path / "out" / "run.h5", tmp_path / "good.npz", tmp_path / "good.toml"):
         o = run_cli(["fig4", bad, "--out", tmp_path / "f"], capsys)
         assert_reported(o, codes=(2, 3), mentions=[bad.name])
+
+
+def test_a_stage_that_fails_is_not_reported_done(tmp_path, capsys):
+    """Progress on stderr: the failing stage says "stopped", never "done", before the error message."""
+    M, K, G, H = random_system(6, seed=8)
+    p = write_scene(tmp_path, "big2", M, K, G * 1e200, H)
+    o = run_cli(["run", p], capsys)
+    assert_reported(o, codes=(3,), mentions=["overflow"])
+    assert "normal form and modal derivatives: stopped in" in o.err
+    assert "normal form and modal derivatives: done" not in o.err
