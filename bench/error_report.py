@@ -206,10 +206,9 @@ COLORS = {"coarse": "tab:blue", "medium": "tab:orange", "fine": "tab:green"}
 
 
 def plots(data: dict[str, Any], out: Path) -> list[str]:
-    import matplotlib
+    from stepnf.figures import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = []
     for shape in SHAPES:
@@ -231,8 +230,7 @@ def plots(data: dict[str, Any], out: Path) -> list[str]:
         axes[-1].legend(handles=hs, fontsize=8, loc="best")
         fig.tight_layout()
         name = f"error_vs_runtime_{shape}.png"
-        fig.savefig(out / name, dpi=110)
-        plt.close(fig)
+        save_figure(fig, out / name, dpi=110)
         names.append(name)
     fig, ax = plt.subplots(figsize=(7, 5))
     for shape, ls in zip(SHAPES, ("-", "--")):
@@ -247,8 +245,7 @@ def plots(data: dict[str, Any], out: Path) -> list[str]:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "modal_nf_vs_n.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "modal_nf_vs_n.png", dpi=110)
     names.append("modal_nf_vs_n.png")
     return names
 

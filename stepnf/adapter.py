@@ -29,24 +29,31 @@ implementations that raise:
     :meth:`quadratic_force` and :meth:`cubic_force` give the exact ``G(u, v)``
     and ``H(u, v, w)`` (for regression tests of the non-intrusive route).
 
+Scene keys: an adapter declares the keys of its ``[model]`` table in
+``model_keys`` (a :class:`stepnf.schema.Schema`), and may override
+``validate_config`` (checks across keys; pure) and ``from_config`` (the
+build); see :class:`stepnf.schema.FromScene`. stepnf checks a scene's
+``[model]`` when it reads the scene, before anything is built, and
+``stepnf solvers --keys NAME`` lists the declared keys.
+
 Units are the solver's own (stepnf never assumes SI). Displacements and forces
 are plain float64 numpy arrays ordered like the rows of ``M`` and ``K``.
 """
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any, Callable, ClassVar, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
-from .errors import AdapterError, SceneError
+from .errors import AdapterError
+from .schema import FromScene
 
 #: Direction codes of :meth:`SolverAdapter.dof_directions`.
 DIRECTIONS = ("ux", "uy", "uz", "rx", "ry", "rz")
 
 
-class SolverAdapter:
+class SolverAdapter(FromScene):
     """Base class of every solver adapter (see the module docstring)."""
 
     #: Entry-point name (informative; the registry uses the entry-point name).
@@ -70,26 +77,6 @@ class SolverAdapter:
     step_relative_amplitude: ClassVar[float | None] = None
 
     # ------------------------------------------------------------------ set-up
-    @classmethod
-    def from_config(
-        cls,
-        config: Mapping[str, Any],
-        *,
-        base_dir: Path,
-        scene_file: Path | None = None,
-    ) -> "SolverAdapter":
-        """Build the adapter from the scene's ``[model]`` table.
-
-        ``config`` holds every key of ``[model]`` except ``solver``; relative
-        paths are relative to ``base_dir`` (the scene's folder). Override this
-        to validate keys; raise :class:`stepnf.errors.SceneError` naming the
-        key and the allowed values.
-        """
-        try:
-            return cls(**dict(config))  # type: ignore[call-arg]
-        except TypeError as exc:
-            raise SceneError(scene_file, "model", f"{cls.__name__} rejected the keys: {exc}") from exc
-
     def close(self) -> None:
         """Release solver resources (work folders, processes). Idempotent."""
 

@@ -115,6 +115,20 @@ def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what:
     return path
 
 
+def write_text(path: str | Path, text: str, *, what: str = "file") -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically, like :func:`write_bytes`."""
+    return write_bytes(path, text.encode("utf-8"), what=what)
+
+
+def csv_text(rows: Iterable[Iterable[Any]]) -> str:
+    """``rows`` as CSV text (the csv module's default dialect, ``\r\n`` line ends)."""
+    import csv
+
+    buf = io.StringIO(newline="")
+    csv.writer(buf).writerows(rows)
+    return buf.getvalue()
+
+
 def hdf5_bytes(fill: Callable[[Any], None], *, format: str, format_version: int,
                base: bytes | None = None) -> bytes:
     """An HDF5 file built in memory: ``fill(h5py.File)`` adds the content.

@@ -1,4 +1,4 @@
-"""Command-line interface: ``stepnf run SCENE``, ``stepnf solvers``.
+"""Command-line interface: ``stepnf run SCENE``, ``stepnf solvers [--keys NAME]``.
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
 solver or numerical failure, or a file that cannot be written; 4 a sweep with
@@ -23,7 +23,9 @@ def _cmd_solvers(args: argparse.Namespace) -> int:
         warnings.simplefilter("always")
         solvers = installed_solvers(refresh=True)
     for w in caught:
-        print(f"warning: {w.message}", file=sys.stderr)
+        print(f"stepnf: warning: {w.message}", file=sys.stderr)
+    if args.keys is not None:
+        return _print_keys(args.keys, solvers)
     if not solvers:
         print("no stepnf solver adapters installed (entry-point group 'stepnf.solvers')")
         return 0
@@ -31,6 +33,20 @@ def _cmd_solvers(args: argparse.Namespace) -> int:
     for name, info in sorted(solvers.items()):
         print(f"{name.ljust(width)}  {info.kind:11s}  {info.distribution} {info.version}  "
               f"[{', '.join(info.capabilities)}]")
+    return 0
+
+
+def _print_keys(name: str, solvers: dict) -> int:
+    """``stepnf solvers --keys NAME``: the keys the solver's ``[model]`` table accepts."""
+    if name not in solvers:
+        raise UnknownSolverError(name, solvers)
+    info = solvers[name]
+    schema = info.cls.model_schema()
+    print(f"[model] keys of solver {name!r} ({info.cls.__name__}, {info.kind}, {info.distribution} {info.version}):")
+    if schema is None:
+        print("  not declared (the adapter sets no model_keys): they are checked only when the model is built")
+        return 0
+    print(schema.format())
     return 0
 
 
@@ -93,11 +109,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 result.extra_files.append(str(path))
         except ImportError as exc:  # matplotlib missing: results are still there
             print(f"warning: no figure ({exc})", file=sys.stderr)
-        except OSError as exc:  # full disk: the results file is written, the figure is not
+        except (OSError, OutputError) as exc:  # full disk: the results file is written, the figure is not
             from .atomic import reason
 
+            cause = exc.__cause__ if isinstance(exc, OutputError) and exc.__cause__ is not None else exc
             print(f"stepnf: warning: no figure {scene.output_dir / (scene.output_name + '_modes.png')}: "
-                  f"{reason(exc)}", file=sys.stderr)
+                  f"{reason(cause)}", file=sys.stderr)
     show(result)
     return 0
 
@@ -224,6 +241,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_f4.add_argument("--n-kappa", type=int, default=300, help="points of the von Karman curves")
     p_f4.set_defaults(func=_cmd_fig4)
     p_sol = sub.add_parser("solvers", parents=[common], help="list the installed solver adapters")
+    p_sol.add_argument("--keys", metavar="NAME", help="list the keys the [model] table of solver NAME accepts "
+                       "(type, range, default, meaning)")
     p_sol.set_defaults(func=_cmd_solvers)
     args = parser.parse_args(argv)
     formatwarning = warnings.formatwarning

@@ -11,7 +11,6 @@ flags within the resonance tolerance are listed but left out of it).
 """
 from __future__ import annotations
 
-import csv
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,9 +18,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .atomic import csv_text, write_text
 from .curves import CurveOptions, compute_curves
 from .errors import SceneError, StoreError
 from .evaluators import nf_modal
+from .figures import pyplot, save_figure
 from .sweep import read_store
 
 RESONANCE_KINDS = ("internal_resonance_1_2", "internal_resonance_1_1")
@@ -118,11 +119,7 @@ def summary(points: Sequence[Point]) -> dict[str, dict[str, Any]]:
 def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequence[str] | None = None,
             n_kappa: int = 300, nu: float = 0.3) -> dict[str, Any]:
     """Draw Fig. 4 and write the table of points; returns the summary and the file paths."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     names = list(names) if names else [Path(s).stem for s in stores]
@@ -167,20 +164,17 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
         ax.set_visible(False)
     fig.suptitle("Type of nonlinearity: von Karman model (lines) and FE models with DNF (points)")
     fig.tight_layout()
-    png = out_dir / "fig4.png"
-    fig.savefig(png, dpi=110)
-    plt.close(fig)
+    png = save_figure(fig, out_dir / "fig4.png", dpi=110)
     rows = [{"store": p.store, "case": p.case, "kappa": p.kappa, "mode": f"({p.mode[0]},{p.mode[1]})",
              "gamma_fe": p.gamma_fe, "gamma_vk": p.gamma_vk, "difference": p.difference,
              "resonant": p.resonant, "flags_fe": ";".join(p.flags_fe), "flags_vk": ";".join(p.flags_vk)}
             for p in points]
     table = out_dir / "fig4_points.csv"
-    with open(table, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["store"])
-        w.writeheader()
-        w.writerows(rows)
+    names = list(rows[0]) if rows else ["store"]
+    write_text(table, csv_text([names] + [[r[k] for k in names] for r in rows]), what="table of points")
     summ = summary(points)
-    (out_dir / "fig4_summary.json").write_text(json.dumps({"summary": summ, "points": rows}, indent=1, default=str))
+    write_text(out_dir / "fig4_summary.json", json.dumps({"summary": summ, "points": rows}, indent=1, default=str),
+               what="summary")
     return {"summary": summ, "figure": str(png), "table": str(table), "points": len(points)}
 
 

@@ -56,9 +56,24 @@ def coupled(g: np.ndarray, tol: float, floor: np.ndarray | float | None = None) 
     return (a > floor) & (a > 0)
 
 
-def _resonance_flags(method: str, p: int, omega: np.ndarray, g: np.ndarray, S: Sequence[int],
-                     ratio: float, tol: Tolerances, labels: Sequence[Any] | None,
-                     floor: np.ndarray | float | None = None) -> list[dict]:
+def resonance_flags(method: str, p: int, omega: np.ndarray, g: np.ndarray, S: Sequence[int],
+                    ratio: float, tol: Tolerances, labels: Sequence[Any] | None,
+                    floor: np.ndarray | float | None = None) -> list[dict]:
+    """Flags of the modes of ``S`` in internal resonance ``ratio`` (2.0 for 1:2, 1.0 for 1:1) with master ``p``.
+
+    A mode ``s != p`` of ``S`` is flagged when the master drives it (``|g[s]|``
+    above the coupling floor, :func:`coupled` with ``tol.coupling`` and
+    ``floor``) and ``|omega[s] / omega[p] - ratio| <= tol.resonance * ratio``
+    (a relative window). ``omega`` are angular frequencies in any one unit
+    (only their ratios count), ``g[s] = g^s_pp`` in the model's units, ``S``
+    and ``p`` indices into them, ``labels`` (optional) the modes' labels.
+    ``method`` names the evaluator in the message (``"nf"``, ``"dnf"``, ``"md"``).
+
+    Returns one dict per flagged mode, in the order of ``S``: ``kind``
+    (``"internal_resonance_1_2"`` or ``"internal_resonance_1_1"``), ``mode``
+    (index ``s``), ``label`` (``labels[s]`` or ``None``), ``ratio``
+    (``omega[s] / omega[p]``) and ``message``.
+    """
     flags = []
     cp = coupled(g, tol.coupling, floor)
     for s in S:
@@ -106,7 +121,7 @@ def nf_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, 
     a4, d4 = _sum_terms(2 * gs2 * (ws2 - 2 * w2), den)
     c5, d5 = _sum_terms(4 * gs2 * w2, den)
     C = (0.0, 0.0, 0.0, h - a4, c5, 0.0)
-    flags = _resonance_flags(method, p, omega, g, S, 2.0, tol, labels, floor)
+    flags = resonance_flags(method, p, omega, g, S, 2.0, tol, labels, floor)
     T = -np.inf if (d4 or d5) else backbone_T(C, omega[p])
     if d4 or d5:
         C = (0.0, 0.0, 0.0, -np.inf, np.inf, 0.0)
@@ -124,7 +139,7 @@ def md_modal(p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, 
     den = (ws2 - w2) ** 2
     a4, d4 = _sum_terms(2 * gs2 * (ws2 - 2 * w2), den)
     c5, d5 = _sum_terms(4 * gs2 * w2, den)
-    flags = _resonance_flags("md", p, omega, g, S, 1.0, tol, labels, floor)
+    flags = resonance_flags("md", p, omega, g, S, 1.0, tol, labels, floor)
     if d4 or d5:  # exact 1:1 with a coupled mode: T -> -inf (3 C4 + C5 - 3 C6 ~ -2 g^2 w^2 / 0)
         return MethodResult("md", -np.inf, (float(g[p]), 0.0, 0.0, np.inf, np.inf, np.inf), flags,
                             order="modal", retained_modes=len(S))

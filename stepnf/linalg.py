@@ -227,7 +227,7 @@ class PseudoInverse:
             if counters is not None:
                 counters.factorizations += 1
             raw = solver_factory(0.0, fixed_dofs=self.fixed)
-            self._fac = Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, "K (supported)")
+            self._fac = Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, "K (supported)")
             self._full = True
         else:
             Kc = sp.csr_matrix(K)[self.free][:, self.free]
@@ -251,7 +251,14 @@ class PseudoInverse:
         return x
 
 
-def _apply_cols(solve: Callable[[np.ndarray], np.ndarray], b: np.ndarray) -> np.ndarray:
+def apply_columns(solve: Callable[[np.ndarray], np.ndarray], b: np.ndarray) -> np.ndarray:
+    """``solve`` applied to ``b`` (n,), or to each column of ``b`` (n, k): a result of ``b``'s shape.
+
+    ``solve`` takes one right-hand side (n,) only, such as an adapter's shifted
+    solve of ``K - sigma M`` (in the adapter's units and dof order); the result
+    is what :class:`Factorization` expects of its ``solve``: an (n,) float
+    array, or the (n, k) columns stacked (k calls of ``solve``).
+    """
     if b.ndim == 1:
         return np.asarray(solve(b), dtype=float)
     return np.column_stack([solve(b[:, j]) for j in range(b.shape[1])])
@@ -267,6 +274,6 @@ def shifted_factorization(K: sp.spmatrix, M: sp.spmatrix, sigma: float, *,
         if counters is not None:
             counters.factorizations += 1
         raw = solver_factory(sigma)
-        return Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, label)
+        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label)
     A = (sp.csr_matrix(K) - sigma * sp.csr_matrix(M)).tocsr()
     return factorize(A, counters=counters, backend=backend, label=label or f"K - {sigma:.6g} M")

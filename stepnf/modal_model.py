@@ -8,15 +8,14 @@ shell model (:mod:`stepnf.models`) and analytic test systems are of this kind.
 """
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
 
 import numpy as np
 
-from .errors import SceneError
+from .schema import FromScene
 
 
-class ModalModel:
+class ModalModel(FromScene):
     """Base class of models known by their modal coefficients.
 
     Conventions: modes are indexed 0..m-1 by increasing frequency and contain
@@ -26,16 +25,6 @@ class ModalModel:
     """
 
     name: ClassVar[str] = ""
-
-    @classmethod
-    def from_config(
-        cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
-    ) -> "ModalModel":
-        """Build from the scene's ``[model]`` table (every key but ``solver``)."""
-        try:
-            return cls(**dict(config))  # type: ignore[call-arg]
-        except TypeError as exc:
-            raise SceneError(scene_file, "model", f"{cls.__name__} rejected the keys: {exc}") from exc
 
     def close(self) -> None:
         """Release resources. Idempotent."""

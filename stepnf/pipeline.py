@@ -13,7 +13,6 @@ from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from .adapter import SolverAdapter, checked_matrices
 from .backbone import MethodResult
@@ -24,9 +23,9 @@ from .diagnostics import (captured_share, check_conditioning, conditioning_flags
                           floor_scale, inverse_mass_norm2, merge_flags, one_two_flags, overflow_is_numerical,
                           slow_fast_ratio, smooth_eigenvalue, soft_mode_flags, t_error, truncation_flags)
 from .errors import ModelWarning, SceneError
-from .evaluators import (FullOrderContext, _resonance_flags, dnf, md_full, md_modal,
-                         nf_modal, retained_set, smd_full, smd_modal)
-from .linalg import Factorization, PseudoInverse, _apply_cols, choose_backend
+from .evaluators import (FullOrderContext, dnf, md_full, md_modal, nf_modal, resonance_flags, retained_set,
+                         smd_full, smd_modal)
+from .linalg import Factorization, PseudoInverse, apply_columns, choose_backend
 from .modal import (ModalBasis, lambda_scale, modal_analysis, orient_degenerate, probe_vector,
                     rigid_body_fields)
 from .modal_model import ModalModel
@@ -46,7 +45,7 @@ def _adapter_shifted(shift_solver, n: int, counters: Counters):
     def shifted(sigma: float, label: str) -> Factorization:
         counters.factorizations += 1
         raw = shift_solver(sigma)
-        return Factorization(lambda b: _apply_cols(raw, b), n, "adapter", counters, label)
+        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label)
     return shifted
 
 
@@ -371,8 +370,8 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     kw = dict(g=g_all, tol=tol, floor=floor, exclude=[nr + p] + [nr + t for t in twins],
                               twin_index=twins, labels=labels)
                     r = md_full(p, phi, omega[p], st.Gv, st.h, context(), tw, **kw)
-                    r.flags += _resonance_flags("md", p, omega, g_all,
-                                                [s for s in range(m) if s not in twins], 1.0, tol, labels, floor)
+                    r.flags += resonance_flags("md", p, omega, g_all,
+                                               [s for s in range(m) if s not in twins], 1.0, tol, labels, floor)
                     if st.Gv_check is not None and np.isfinite(r.T):  # T again at the check amplitude
                         r2 = md_full(p, phi, omega[p], st.Gv_check, st.h_check, context(), tw, **kw)
                         r.T_error = t_error(r.T, r2.T)

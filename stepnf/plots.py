@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .figures import pyplot, save_figure
 from .results import RunResult, label_text
 
 
@@ -20,10 +21,7 @@ def plot_mode_shapes(result: RunResult, path: str | Path) -> Path | None:
     Phi = result.arrays.get("phi_masters")
     if X is None or D is None or Phi is None:
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     from matplotlib.tri import Triangulation
 
     sel = np.asarray(D) == 2
@@ -59,8 +57,4 @@ def plot_mode_shapes(result: RunResult, path: str | Path) -> Path | None:
     kappa = f" (kappa = {result.kappa:.3g})" if result.kappa is not None else ""
     fig.suptitle(f"master modes, transverse displacement{kappa}")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

@@ -51,6 +51,8 @@ class SolverInfo:
             ("provides_eigenmodes", "eigenmodes"),
             ("provides_shifted_solves", "shifted solves"),
             ("provides_intrusive_tensors", "intrusive tensors"),
+            ("provides_tangent_stiffness", "tangent stiffness"),
+            ("collective", "collective (MPI)"),
         ):
             if getattr(self.cls, flag, False):
                 caps.append(text)

@@ -32,21 +32,21 @@ offer it and print few digits). ``[output]``: ``dir``,
 Every key is checked when the file is read, with its allowed range (the
 constants below give each range and its reason): a wrong type, a value out of
 range or a file that is not UTF-8 TOML is a :class:`~stepnf.errors.SceneError`
-naming the file and the key (exit code 2). :func:`check_number`,
-:func:`check_bool`, :func:`check_text` and :func:`check_name` are the checks adapters reuse for
-their own ``[model]`` keys, and :func:`read_toml` reads every TOML file stepnf
-takes (scenes, sweeps).
+naming the file and the key (exit code 2), worded by the checks of
+:mod:`stepnf.config`. ``[model]`` is checked too, by the solver's own
+declared keys (:func:`check_model_keys`; ``stepnf solvers --keys NAME`` lists
+them), so a misspelt key anywhere fails when the scene is read.
 """
 from __future__ import annotations
 
-import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from .errors import SceneError, allowed
+from .config import (check_bool, check_choice, check_name, check_number, check_table, check_text, check_unknown,
+                     describe_value, read_toml)
+from .errors import SceneError, UnknownSolverError, allowed
 from .evaluators import Tolerances
 from .linalg import BACKENDS
 from .step import STEP_METHODS, StepPolicy
@@ -98,10 +98,6 @@ class Scene:
         return str(self.file) if self.file else "<scene>"
 
 
-#: A scene or sweep file is a few hundred bytes; anything this large is not one (and a device such
-#: as /dev/zero would otherwise be read for ever).
-MAX_FILE_BYTES = 4 * 2**20
-
 #: Ranges of the [analysis] numbers (reasons in the comments; the tolerances are relative, so above 1
 #: they can only be nonsense).
 MAX_MODES = 100_000        # eigenpairs: beyond this no FE eigensolver finishes in memory
@@ -120,132 +116,6 @@ RELATIVE_AMPLITUDE_RANGE = (1e-6, 100.0)
 CHECK_RATIO_RANGE = (1e-3, 1e3)
 
 
-def describe_value(value: Any) -> str:
-    """``value`` as a message shows it: its TOML spelling (shortened) and its kind."""
-    if isinstance(value, bool):
-        return f"{str(value).lower()} (a boolean)"
-    if isinstance(value, int):
-        text = str(value)
-        return text if len(text) <= 24 else f"an integer of {len(text)} digits ({text[:12]}...)"
-    if isinstance(value, float):
-        return repr(value)
-    kind = ("a string" if isinstance(value, str) else "a table" if isinstance(value, Mapping)
-            else "an array" if isinstance(value, list) else f"a {type(value).__name__}")
-    text = repr(value)
-    if len(text) > 60:
-        text = text[:57] + "..."
-    return f"{text} ({kind})"
-
-
-def _bound(x: float) -> str:
-    return str(x) if isinstance(x, int) else f"{x:g}"
-
-
-def interval(lo: float | None, hi: float | None, *, lo_open: bool = False, hi_open: bool = False) -> str:
-    """``[lo, hi]``, ``(lo, hi]``, ``>= lo``... as a message shows an allowed range."""
-    if lo is not None and hi is not None:
-        return f"{'(' if lo_open else '['}{_bound(lo)}, {_bound(hi)}{')' if hi_open else ']'}"
-    if lo is not None:
-        return f"{'>' if lo_open else '>='} {_bound(lo)}"
-    if hi is not None:
-        return f"{'<' if hi_open else '<='} {_bound(hi)}"
-    return "(any finite value)"
-
-
-def check_number(file: str | Path | None, key: str, value: Any, *, integer: bool = False,
-                 lo: float | None = None, hi: float | None = None, lo_open: bool = False,
-                 hi_open: bool = False, why: str = "") -> int | float:
-    """``value`` if it is a number (an integer when ``integer``) in the range; else a SceneError.
-
-    Booleans, strings, tables, arrays, NaN and inf are refused; huge integers are compared
-    exactly (never converted to float first). ``why`` is appended to the message.
-    """
-    rng = interval(lo, hi, lo_open=lo_open, hi_open=hi_open)
-    ok_type = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok_type or not (isinstance(value, int) or math.isfinite(value)):
-        what = ("an integer" if integer else "a finite number") + ("" if lo is None and hi is None else f" in {rng}")
-        raise SceneError(file, key, f"expected {what}{why}, got {describe_value(value)}")
-    if not ((lo is None or (value > lo if lo_open else value >= lo))
-            and (hi is None or (value < hi if hi_open else value <= hi))):
-        verb = "must lie in" if lo is not None and hi is not None else "must be"
-        raise SceneError(file, key, f"{verb} {rng}{why}, got {describe_value(value)}")
-    return value
-
-
-def check_bool(file: str | Path | None, key: str, value: Any) -> bool:
-    """``value`` if it is true or false; else a SceneError."""
-    if not isinstance(value, bool):
-        raise SceneError(file, key, f"expected true or false, got {describe_value(value)}")
-    return value
-
-
-def check_text(file: str | Path | None, key: str, value: Any, what: str, max_len: int = 4096) -> str:
-    """``value`` if it is a non-empty string without NUL of at most ``max_len`` characters (a file or folder
-    name, a command, an address); else a SceneError saying ``what`` was expected."""
-    if not isinstance(value, str) or not value.strip() or "\x00" in value or len(value) > max_len:
-        raise SceneError(file, key, f"expected {what} (a non-empty string without NUL, at most {max_len} "
-                         f"characters), got {describe_value(value)}")
-    return value
-
-
-def check_name(file: str | Path | None, key: str, value: Any) -> str:
-    """A file stem written into an output folder: no path separator, not '.', '..' or empty."""
-    bad = (not isinstance(value, str) or not value.strip() or value in (".", "..")
-           or any(c in value for c in "/\\") or any(ord(c) < 32 or ord(c) == 127 for c in value)
-           or len(value.encode("utf-8", "surrogatepass")) > 200)
-    if bad:
-        raise SceneError(file, key, "expected a file stem: a non-empty string of at most 200 bytes, without "
-                         f"'/', '\\', control characters, and not '.' or '..'; got {describe_value(value)}")
-    return value
-
-
-def _choice(file, key, value, choices):
-    if isinstance(value, (list, Mapping)) or value not in choices:
-        raise SceneError(file, key, f"got {describe_value(value)}; allowed values: {allowed(choices)}")
-    return value
-
-
-def _unknown(file, table: str, data: Mapping, keys) -> None:
-    for k in data:
-        if k not in keys:
-            raise SceneError(file, f"{table}.{k}" if table else k,
-                             f"unknown key; allowed keys of [{table or 'top level'}]: {allowed(keys)}")
-
-
-def read_toml(path: str | Path, what: str = "scene") -> tuple[dict[str, Any], str]:
-    """The table and the text of a TOML file; a SceneError naming the file for anything else.
-
-    Refused: unreadable or non-regular files, files over :data:`MAX_FILE_BYTES`, text that is
-    not UTF-8 (Latin-1, UTF-16, binary), invalid or absurdly nested TOML. A UTF-8 byte-order
-    mark is allowed.
-    """
-    path = Path(path)
-    need = f"a {what} file must be UTF-8 encoded TOML"
-    try:
-        if path.exists() and not path.is_file():
-            raise SceneError(path, None, f"not a regular file; {need}")
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_FILE_BYTES + 1)
-    except OSError as exc:
-        raise SceneError(path, None, f"cannot read the {what} file: {exc.strerror or exc}") from exc
-    if len(raw) > MAX_FILE_BYTES:
-        raise SceneError(path, None, f"larger than {MAX_FILE_BYTES // 2**20} MiB; {need} of a few lines")
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SceneError(path, None, f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start}; "
-                         f"Latin-1, UTF-16 or binary?); {need}") from exc
-    if "\x00" in text:
-        raise SceneError(path, None, f"contains NUL bytes (UTF-16 or binary?); {need}")
-    text = text.removeprefix("\ufeff")
-    try:
-        return tomllib.loads(text), text
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(path, None, f"not valid TOML: {exc}") from exc
-    except RecursionError as exc:
-        raise SceneError(path, None, "not valid TOML: arrays or tables nested too deeply") from exc
-
-
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file; errors name the file, the key and what is allowed."""
     path = Path(path)
@@ -254,12 +124,16 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: Path | None = None,
-                text: str = "") -> Scene:
-    """Validate a scene given as a mapping (what ``tomllib`` returns)."""
+                text: str = "", check_model: bool = True) -> Scene:
+    """Validate a scene given as a mapping (what ``tomllib`` returns).
+
+    ``check_model``: also check ``[model]`` against the solver's declared keys (the solver must be
+    installed; see :func:`check_model_keys`), as every scene read from a file is.
+    """
     f = file
     if not isinstance(data, Mapping):
         raise SceneError(f, None, f"expected a TOML document (a table), got {describe_value(data)}")
-    _unknown(f, "", data, TOP_KEYS)
+    check_unknown(f, "", data, TOP_KEYS)
     model = data.get("model")
     if not isinstance(model, Mapping):
         raise SceneError(f, "model", "missing table [model] (with at least solver = \"<name>\")" if model is None
@@ -272,7 +146,7 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
     if not isinstance(an, Mapping):
         raise SceneError(f, "analysis", "missing table [analysis] (master_modes, methods, ...)" if an is None
                          else f"expected a table [analysis], got {describe_value(an)}")
-    _unknown(f, "analysis", an, ANALYSIS_KEYS)
+    check_unknown(f, "analysis", an, ANALYSIS_KEYS)
     sc = Scene(solver=solver, model={k: v for k, v in model.items() if k != "solver"},
                master_modes=_masters(f, an.get("master_modes")),
                methods=_methods(f, an.get("methods", ["nf", "dnf", "md", "smd"])), file=file,
@@ -280,7 +154,22 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
     _analysis(f, an, sc)
     sc.step = _step(f, an.get("step", {}))
     _output(f, data.get("output", {}), sc)
+    if check_model:
+        check_model_keys(sc)
     return sc
+
+
+def check_model_keys(scene: Scene) -> dict[str, Any]:
+    """The scene's ``[model]`` keys checked by its solver's
+    :meth:`~stepnf.schema.FromScene.validate_config` (pure: nothing is built or computed), so a
+    misspelt key fails when the scene is read, before any eigen-solve or Dask worker."""
+    from .registry import get_solver
+
+    try:
+        cls = get_solver(scene.solver)
+    except UnknownSolverError as exc:
+        raise SceneError(scene.file, "model.solver", str(exc)) from exc
+    return cls.validate_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
 
 
 def _masters(f, masters: Any) -> list[int | str]:
@@ -317,7 +206,7 @@ def _methods(f, methods: Any) -> list[str]:
     if not isinstance(methods, list) or not methods:
         raise SceneError(f, key, f"expected a non-empty list from {allowed(METHODS)}, got {describe_value(methods)}")
     for i, m in enumerate(methods):
-        _choice(f, f"{key}[{i}]", m, METHODS)
+        check_choice(f, f"{key}[{i}]", m, METHODS)
     if len(set(methods)) != len(methods):
         raise SceneError(f, key, f"repeated methods in {methods}")
     return list(methods)
@@ -335,9 +224,9 @@ def _analysis(f, an: Mapping[str, Any], sc: Scene) -> None:
         sc.retained_modes = check_number(f, "analysis.retained_modes", an["retained_modes"], integer=True,
                                          lo=1, hi=MAX_MODES)
     if "qm_order" in an:
-        sc.qm_order = _choice(f, "analysis.qm_order", an["qm_order"], ("full", "modal"))
+        sc.qm_order = check_choice(f, "analysis.qm_order", an["qm_order"], ("full", "modal"))
     if "tensors" in an:
-        sc.tensors = _choice(f, "analysis.tensors", an["tensors"], ("targeted", "full"))
+        sc.tensors = check_choice(f, "analysis.tensors", an["tensors"], ("targeted", "full"))
     if "rigid_modes" in an and an["rigid_modes"] != "auto":
         sc.rigid_modes = check_number(f, "analysis.rigid_modes", an["rigid_modes"], integer=True, lo=0,
                                       hi=MAX_RIGID_MODES, why=' (or "auto")')
@@ -352,7 +241,7 @@ def _analysis(f, an: Mapping[str, Any], sc: Scene) -> None:
                 tol[attr] = v
     sc.tolerances = Tolerances(**tol)
     if "linear_solver" in an:
-        sc.linear_solver = _choice(f, "analysis.linear_solver", an["linear_solver"], BACKENDS)
+        sc.linear_solver = check_choice(f, "analysis.linear_solver", an["linear_solver"], BACKENDS)
     if "deflation" in an:
         sc.deflation = check_bool(f, "analysis.deflation", an["deflation"])
     if "max_modes" in an:
@@ -361,9 +250,8 @@ def _analysis(f, an: Mapping[str, Any], sc: Scene) -> None:
 
 def _step(f, step: Any) -> StepPolicy:
     """``[analysis.step]``: the STEP amplitude policy."""
-    if not isinstance(step, Mapping):
-        raise SceneError(f, "analysis.step", f"expected a table [analysis.step], got {describe_value(step)}")
-    _unknown(f, "analysis.step", step, STEP_KEYS)
+    check_table(f, "analysis.step", step)
+    check_unknown(f, "analysis.step", step, STEP_KEYS)
     kw: dict[str, Any] = {}
     if "amplitude" in step and step["amplitude"] != "auto":
         lo, hi = AMPLITUDE_RANGE
@@ -386,15 +274,14 @@ def _step(f, step: Any) -> StepPolicy:
         kw["tolerance"] = float(check_number(f, "analysis.step.tolerance", step["tolerance"], lo=0, hi=1.0,
                                              lo_open=True, why=" (a relative error)"))
     if "method" in step:
-        kw["method"] = _choice(f, "analysis.step.method", step["method"], STEP_METHODS)
+        kw["method"] = check_choice(f, "analysis.step.method", step["method"], STEP_METHODS)
     return StepPolicy(**kw)
 
 
 def _output(f, out: Any, sc: Scene) -> None:
     """``[output]``: folder, file stem, what to write."""
-    if not isinstance(out, Mapping):
-        raise SceneError(f, "output", f"expected a table [output], got {describe_value(out)}")
-    _unknown(f, "output", out, OUTPUT_KEYS)
+    check_table(f, "output", out)
+    check_unknown(f, "output", out, OUTPUT_KEYS)
     d = check_text(f, "output.dir", out.get("dir", "results"), "a folder path")
     sc.output_dir = Path(d) if Path(d).is_absolute() else sc.base_dir / d
     # the default, the scene's own file stem, has no '/' and stays inside the folder

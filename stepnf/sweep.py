@@ -48,7 +48,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from .errors import SceneError, StoreError, allowed
+from .config import check_name, check_number, check_table, check_text, check_unknown, describe_value, read_toml
+from .errors import SceneError, StoreError
 
 TOP_KEYS = ("sweep", "output")
 SWEEP_KEYS = ("name", "base", "vary", "scenes", "dask")
@@ -107,19 +108,13 @@ def load_sweep(path: str | Path) -> Sweep:
     Anything malformed is a :class:`SceneError` naming the sweep file and the key (exit code 2)
     before a worker starts or the store is touched.
     """
-    from .scene import check_name, read_toml
-
     path = Path(path).resolve()
     raw, _ = read_toml(path, "sweep")
-    for k in raw:
-        if k not in TOP_KEYS:
-            raise SceneError(path, k, f"unknown table; a sweep file holds {allowed(TOP_KEYS)}")
-    sw = raw.get("sweep")
-    if not isinstance(sw, Mapping):
+    check_unknown(path, "", raw, TOP_KEYS)
+    if "sweep" not in raw:
         raise SceneError(path, "sweep", "missing table [sweep] (with base + vary, or scenes)")
-    for k in sw:
-        if k not in SWEEP_KEYS:
-            raise SceneError(path, f"sweep.{k}", f"unknown key; allowed keys: {allowed(SWEEP_KEYS)}")
+    sw = check_table(path, "sweep", raw["sweep"], "(with base + vary, or scenes)")
+    check_unknown(path, "sweep", sw, SWEEP_KEYS)
     name = check_name(path, "sweep.name", sw["name"]) if "name" in sw else path.stem  # a stem has no '/'
     cases = _listed_cases(path, sw) if "scenes" in sw else _varied_cases(path, sw)
     ids = [c.id for c in cases]
@@ -132,23 +127,9 @@ def load_sweep(path: str | Path) -> Sweep:
     return Sweep(name, cases, store, scheduler, n_workers, threads, path)
 
 
-def _text(path: Path, key: str, value: Any, what: str) -> str:
-    from .scene import check_text
-
-    return check_text(path, key, value, what)
-
-
-def _shown(value: Any) -> str:
-    from .scene import describe_value
-
-    return describe_value(value)
-
-
 def _read_scene(path: Path, key: str, name: Any) -> tuple[Path, dict[str, Any]]:
     """The scene file ``name`` (relative to the sweep file), read as TOML; errors name ``key``."""
-    from .scene import read_toml
-
-    sp = (path.parent / _text(path, key, name, "a scene file name")).resolve()
+    sp = (path.parent / check_text(path, key, name, "a scene file name")).resolve()
     try:
         return sp, read_toml(sp, "scene")[0]
     except SceneError as exc:
@@ -176,7 +157,7 @@ def _listed_cases(path: Path, sw: Mapping[str, Any]) -> list[Case]:
     scenes = sw["scenes"]
     if not isinstance(scenes, list) or not scenes or len(scenes) > MAX_CASES:
         raise SceneError(path, "sweep.scenes", f"expected a non-empty list (at most {MAX_CASES}) of scene file "
-                         f"names, relative to the sweep file; got {_shown(scenes)}")
+                         f"names, relative to the sweep file; got {describe_value(scenes)}")
     cases = []
     for i, s in enumerate(scenes):
         sp, data = _read_scene(path, f"sweep.scenes[{i}]", s)
@@ -189,7 +170,7 @@ def _vary(path: Path, vary: Any) -> dict[str, list]:
     """``[sweep.vary]``: dotted scene keys -> non-empty lists, at most :data:`MAX_CASES` combinations."""
     if not isinstance(vary, Mapping):
         raise SceneError(path, "sweep.vary", f"expected a table of dotted scene keys -> non-empty lists, "
-                         f"got {_shown(vary)}")
+                         f"got {describe_value(vary)}")
     n = 1
     for k, v in vary.items():
         parts = k.split(".")
@@ -197,7 +178,7 @@ def _vary(path: Path, vary: Any) -> dict[str, list]:
             raise SceneError(path, f"sweep.vary.{k}", "expected a dotted scene key such as "
                              "\"model.geometry.R\" (starting with model, analysis or output)")
         if not isinstance(v, list) or not v:
-            raise SceneError(path, f"sweep.vary.{k}", f"expected a non-empty list of values, got {_shown(v)}")
+            raise SceneError(path, f"sweep.vary.{k}", f"expected a non-empty list of values, got {describe_value(v)}")
         n *= len(v)
     if n > MAX_CASES:
         raise SceneError(path, "sweep.vary", f"{n} combinations; a sweep may have at most {MAX_CASES} cases")
@@ -228,28 +209,17 @@ def _varied_cases(path: Path, sw: Mapping[str, Any]) -> list[Case]:
 
 def _output_dir(path: Path, out: Any) -> Path:
     """``[output] dir`` (relative to the sweep file), the folder of the store."""
-    if not isinstance(out, Mapping):
-        raise SceneError(path, "output", f"expected a table [output] with dir, got {_shown(out)}")
-    for k in out:
-        if k not in OUTPUT_KEYS:
-            raise SceneError(path, f"output.{k}", f"unknown key; allowed keys of a sweep's [output]: "
-                             f"{allowed(OUTPUT_KEYS)}")
-    d = Path(_text(path, "output.dir", out.get("dir", "results"), "a folder path"))
+    check_unknown(path, "output", check_table(path, "output", out, "with dir"), OUTPUT_KEYS)
+    d = Path(check_text(path, "output.dir", out.get("dir", "results"), "a folder path"))
     return d if d.is_absolute() else path.parent / d
 
 
 def _dask(path: Path, dk: Any) -> tuple[str | None, int | None, int]:
     """``[sweep.dask]``: ``(scheduler, n_workers, threads_per_worker)``, each checked."""
-    from .scene import check_number
-
-    if not isinstance(dk, Mapping):
-        raise SceneError(path, "sweep.dask", f"expected a table [sweep.dask], got {_shown(dk)}")
-    for k in dk:
-        if k not in DASK_KEYS:
-            raise SceneError(path, f"sweep.dask.{k}", f"unknown key; allowed keys: {allowed(DASK_KEYS)}")
+    check_unknown(path, "sweep.dask", check_table(path, "sweep.dask", dk), DASK_KEYS)
     scheduler = None
     if "scheduler" in dk:
-        scheduler = _text(path, "sweep.dask.scheduler", dk["scheduler"], "a scheduler address such as "
+        scheduler = check_text(path, "sweep.dask.scheduler", dk["scheduler"], "a scheduler address such as "
                           "\"tcp://10.0.0.5:8786\"")
         if not _ADDRESS.match(scheduler):
             raise SceneError(path, "sweep.dask.scheduler", f"expected an address such as \"tcp://10.0.0.5:8786\" "

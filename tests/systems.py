@@ -84,3 +84,12 @@ def solver_backends() -> list[str]:
     except Exception:  # pragma: no cover - petsc4py is a Debian package here
         pass
     return out
+
+
+def use_solver(monkeypatch, get_solver) -> None:
+    """Every solver name resolves through ``get_solver(name)`` (an in-test adapter class instead of an
+    installed plugin): both where a scene's [model] keys are checked and where the pipeline builds it."""
+    from stepnf import pipeline, registry
+
+    monkeypatch.setattr(registry, "get_solver", get_solver)
+    monkeypatch.setattr(pipeline, "get_solver", get_solver)

@@ -4,12 +4,11 @@ import json
 import numpy as np
 import pytest
 
-import stepnf.pipeline as pipeline
 from stepnf.cli import main
 from stepnf.errors import StoreError
 from stepnf.results import read_hdf5
 from stepnf_polynomial import PolynomialAdapter, save_system
-from systems import random_system
+from systems import random_system, use_solver
 
 
 class NaNForces(PolynomialAdapter):
@@ -36,7 +35,7 @@ def test_nan_forces_fail_clearly_and_keep_previous_results(tmp_path, capsys, mon
     assert main(["run", str(s), "-q"]) == 0
     h5 = tmp_path / "out" / "s.h5"
     before = h5.read_bytes()
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: NaNForces)
+    use_solver(monkeypatch, lambda name: NaNForces)
     assert main(["run", str(s), "-q"]) == 3
     err = capsys.readouterr().err
     assert "NaN or inf internal forces for field(s) [2]" in err and "NaNForces" in err

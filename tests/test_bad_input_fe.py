@@ -55,7 +55,7 @@ def run_bad(workdir, text: str, capsys, name="bad.toml") -> tuple[int, str]:
     return rc, err
 
 
-@pytest.mark.parametrize("h, text", [(-0.003, "thickness must be > 0"), (0.0, "thickness must be > 0")])
+@pytest.mark.parametrize("h, text", [(-0.003, "must lie in [1e-12, 1e+12] (a length"), (0.0, "must lie in [1e-12, 1e+12] (a length")])
 def test_non_positive_thickness(workdir, capsys, h, text):
     rc, err = run_bad(workdir, generated(h=h), capsys)
     assert rc == 2

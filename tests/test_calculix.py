@@ -191,11 +191,12 @@ def test_user_inp_mesh_and_template(tmp_path):
      "model.geometry.R"),
     ({"geometry": {"a": 1.0, "R": "inf", "h": 0.1}, "material": {"E": 1.0, "nu": 0.3}}, "model.material.rho"),
     ({"geometry": {"a": 1.0, "R": "inf", "h": 0.1, "n_cor": 3},
-      "material": {"E": 1.0, "nu": 0.3, "rho": 1.0}}, "model.geometry"),
+      "material": {"E": 1.0, "nu": 0.3, "rho": 1.0}}, "model.geometry.n_cor"),
     ({"mesh": "nope.inp"}, "model.mesh"),
-    ({"mesh": "nope.inp", "keep": "sometimes"}, "model.keep"),
+    ({"mesh": "mesh.inp", "keep": "sometimes"}, "model.keep"),
 ])
 def test_scene_errors_name_the_key(tmp_path, cfg, key):
+    (tmp_path / "mesh.inp").write_text("")  # exists: the other keys are checked (never read: a key fails first)
     with pytest.raises(SceneError) as ei:
         CalculixAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "s.toml")
     assert ei.value.key == key

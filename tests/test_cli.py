@@ -98,7 +98,7 @@ def test_rigid_modes_are_excluded_from_indices(tmp_path, capsys):
 
 @pytest.mark.parametrize("analysis, key, text", [
     ('methods = ["nf"]\n', "analysis.master_modes", "non-empty list"),
-    ('master_modes = [0]\nmethods = ["nnf"]\n', "analysis.methods[0]", "allowed values"),
+    ('master_modes = [0]\nmethods = ["nnf"]\n', "analysis.methods[0]", "expected one of"),
     ('master_modes = [0]\nmethods = ["nf"]\nretained_modes = 0\n', "analysis.retained_modes", "must lie in"),
     ('master_modes = [0]\nmethods = ["nf"]\ncolour = 1\n', "analysis.colour", "unknown key"),
     ('master_modes = [-1]\nmethods = ["nf"]\n', "analysis.master_modes[0]", "start at 0"),

@@ -54,6 +54,28 @@ def test_cli_writes_hdf5_csv_png(tmp_path, capsys):
     assert len(rows) == 2 * 5 and rows[0]["mode"] == "(2,0)"
 
 
+def test_figures_are_written_atomically_and_closed(curves, tmp_path):
+    """stepnf.figures.save_figure: the bytes of a direct savefig, the figure closed, no temporary file left."""
+    from stepnf.curves import plot_nonlinearity
+    from stepnf.figures import pyplot, save_figure
+
+    plt = pyplot()
+    assert plt.get_backend().lower() == "agg"
+    direct = tmp_path / "direct.png"
+    fig = draw_nonlinearity(curves, "gamma")
+    fig.savefig(direct, dpi=120)
+    plt.close(fig)
+    before = set(plt.get_fignums())
+    path = plot_nonlinearity(curves, tmp_path / "new" / "fig3.png", "gamma")
+    assert path == tmp_path / "new" / "fig3.png" and set(plt.get_fignums()) == before
+    assert path.read_bytes() == direct.read_bytes()
+    assert sorted(p.name for p in path.parent.iterdir()) == ["fig3.png"]
+    fig = plt.figure()
+    save_figure(fig, path, dpi=50)  # replaces the file in place
+    assert not plt.fignum_exists(fig.number) and path.read_bytes() != direct.read_bytes()
+    assert sorted(p.name for p in path.parent.iterdir()) == ["fig3.png"]
+
+
 def test_cli_rejects_bad_modes(tmp_path, capsys):
     assert main(["curves", "--n-kappa", "3", "--modes", "(2)", "--out", str(tmp_path), "-q"]) == 2
     assert "two integers" in capsys.readouterr().err

@@ -20,7 +20,7 @@ import pytest
 import scipy.sparse as sp
 
 from stepnf.counters import Counters
-from stepnf.evaluators import (FullOrderContext, Tolerances, _resonance_flags, dnf, md_full, md_modal, nf_modal,
+from stepnf.evaluators import (FullOrderContext, Tolerances, dnf, md_full, md_modal, nf_modal, resonance_flags,
                                smd_full, smd_modal)
 from stepnf.linalg import PseudoInverse
 from stepnf.modal import modal_analysis
@@ -125,7 +125,7 @@ def test_nf_flags_one_to_two_resonance(ratio, flagged):
     if not flagged:
         assert d.T == pytest.approx(nf.T, rel=RTOL)
     # the flag the pipeline attaches to DNF names the same mode
-    pf = _resonance_flags("dnf", 0, basis.omega, g, range(2), 2.0, Tolerances(), None)
+    pf = resonance_flags("dnf", 0, basis.omega, g, range(2), 2.0, Tolerances(), None)
     assert [f["mode"] for f in pf] == ([1] if flagged else [])
 
 

@@ -146,14 +146,14 @@ def _with(path: str, value):
     ("geometry.a", None, "model.geometry"),
     ("geometry.shape", "cylinder", "model.geometry.shape"),
     ("geometry.n_core", 0, "model.geometry.n_core"),
-    ("geometry.colour", 1, "model.geometry"),
+    ("geometry.colour", 1, "model.geometry.colour"),
     ("material.nu", 0.5, "model.material.nu"),
     ("material.E", None, "model.material.E"),  # the missing key itself
     ("material.rho", -1.0, "model.material.rho"),
     ("mesh", "missing.msh", "model.mesh"),
     ("quadrature_degree", 1, "model.quadrature_degree"),
     ("geometry", None, "model.geometry"),
-    ("colour", "red", "model"),
+    ("colour", "red", "model.colour"),
 ])
 def test_scene_errors_name_the_key(tmp_path, path, value, key):
     with pytest.raises(SceneError) as info:

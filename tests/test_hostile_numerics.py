@@ -21,7 +21,7 @@ from hostile import assert_reported, run_cli, snapshot
 from stepnf.errors import ModelWarning
 from stepnf.scene import load_scene
 from stepnf_polynomial import PolynomialAdapter, save_system
-from systems import full_symmetrize, random_system
+from systems import full_symmetrize, random_system, use_solver
 
 
 def write_scene(tmp_path, name, M, K, G, H, analysis="", methods='["nf", "dnf", "md", "smd"]'):
@@ -168,7 +168,7 @@ class Exploding(PolynomialAdapter):
 
 def test_an_unexpected_error_is_one_line_and_debug_shows_the_traceback(tmp_path, capsys, monkeypatch):
     p = write_scene(tmp_path, "bug", *random_system(6, seed=8))
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: Exploding)
+    use_solver(monkeypatch, lambda name: Exploding)
     o = run_cli(["run", p, "-q"], capsys)
     assert o.code == 1 and "Traceback" not in o.err
     assert "internal error" in o.err and "adapter bug on purpose" in o.err and "--debug" in o.err
@@ -182,7 +182,7 @@ def test_an_os_error_is_exit_3_naming_the_file(tmp_path, capsys, monkeypatch):
     def refuse(*a, **k):
         raise PermissionError(13, "Permission denied", str(tmp_path / "somewhere.npz"))
 
-    monkeypatch.setattr(pipeline, "get_solver", refuse)
+    use_solver(monkeypatch, refuse)
     assert_reported(run_cli(["run", p, "-q"], capsys), codes=(3,), mentions=["Permission denied", "somewhere.npz"])
 
 

@@ -200,7 +200,7 @@ def _no_solver(name):
 def test_output_dir_is_a_file(tmp_path, capsys, monkeypatch):
     (tmp_path / "out").write_text("not a folder")
     s = scene(tmp_path, "out")
-    monkeypatch.setattr(pipeline, "get_solver", _no_solver)
+    monkeypatch.setattr(pipeline, "get_solver", _no_solver)  # the scene itself names an installed solver
     o = run_cli(["run", s, "-q", "--json"], capsys)
     assert_reported(o, codes=(2,), mentions=["output.dir", str(tmp_path / "out"), "not a folder"])
     assert o.out == ""
@@ -209,7 +209,7 @@ def test_output_dir_is_a_file(tmp_path, capsys, monkeypatch):
 def test_output_dir_not_creatable(tmp_path, capsys, monkeypatch):
     (tmp_path / "f").write_text("a file")
     s = scene(tmp_path, "f/sub/out")
-    monkeypatch.setattr(pipeline, "get_solver", _no_solver)
+    monkeypatch.setattr(pipeline, "get_solver", _no_solver)  # the scene itself names an installed solver
     o = run_cli(["run", s, "-q"], capsys)
     assert_reported(o, codes=(2,), mentions=["output.dir", str(tmp_path / "f" / "sub" / "out")])
     # the --output override is checked the same way
@@ -224,7 +224,7 @@ def test_output_dir_read_only_permissions(tmp_path, capsys, monkeypatch):
     out.chmod(0o555)
     try:
         s = scene(tmp_path, "out")
-        monkeypatch.setattr(pipeline, "get_solver", _no_solver)
+        monkeypatch.setattr(pipeline, "get_solver", _no_solver)  # the scene itself names an installed solver
         o = run_cli(["run", s, "-q"], capsys)
         assert_reported(o, codes=(2,), mentions=["output.dir", str(out), "permission denied"])
     finally:
@@ -234,7 +234,7 @@ def test_output_dir_read_only_permissions(tmp_path, capsys, monkeypatch):
 def test_output_dir_read_only_mount(tmp_path, tmpfs, capsys, monkeypatch):
     out = tmpfs(64, ro=True)
     s = scene(tmp_path, out)
-    monkeypatch.setattr(pipeline, "get_solver", _no_solver)
+    monkeypatch.setattr(pipeline, "get_solver", _no_solver)  # the scene itself names an installed solver
     o = run_cli(["run", s, "-q"], capsys)
     assert_reported(o, codes=(2,), mentions=["output.dir", str(out), "read-only file system"])
     # and one level below (a folder to create on a read-only file system)
@@ -254,6 +254,7 @@ def test_sweep_store_folder_checked_before_dask_starts(tmp_path, capsys, monkeyp
     (tmp_path / "base.toml").write_text('[model]\nsolver = "polynomial"\nfile = "x.npz"\n'
                                         '[analysis]\nmaster_modes = [0]\nmethods = ["nf"]\n')
     (tmp_path / "results").write_text("a file, not a folder")
+    (tmp_path / "x.npz").write_bytes(b"")  # exists (checked when the sweep is read), never loaded
     s = tmp_path / "sw.toml"
     s.write_text('[sweep]\nname = "st"\nbase = "base.toml"\n[sweep.vary]\n"analysis.retained_modes" = [2, 3]\n'
                  '[output]\ndir = "results"\n')

@@ -349,7 +349,7 @@ CAP_CASES = [
     ("core = 0.9", "model.geometry.core"),
     (f"core = {HUGE_INT}", "model.geometry.core"),
     ("a = 1e300\nR = \"inf\"", "model.geometry.a"),
-    ("a = 1e300", "model.geometry.R"),
+    ("a = 1e300", "model.geometry.a"),  # the length range before R >= a
     ("h = 1e-9", "model.geometry.h"),
     ("R = 1e300", "model.geometry.R"),
     ("R = -0.0", "model.geometry.R"),

@@ -19,13 +19,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-import stepnf.pipeline as pipeline
 from hostile import assert_reported, run_cli
 from stepnf.adapter import SYMMETRY_TOLERANCE, checked_matrix
 from stepnf.errors import AdapterError
 from stepnf.external import ExternalSolverAdapter, require_files
 from stepnf_polynomial import PolynomialAdapter, save_system
-from systems import random_system
+from systems import random_system, use_solver
 
 N = 6
 
@@ -78,7 +77,7 @@ def _bad_adapter(which: str, make):
 @pytest.mark.parametrize("case", list(BAD_MATRICES))
 def test_bad_matrices_are_solver_failures(tmp_path, capsys, monkeypatch, case):
     which, make, mentions = BAD_MATRICES[case]
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: _bad_adapter(which, make))
+    use_solver(monkeypatch, lambda name: _bad_adapter(which, make))
     o = run_cli(["run", scene(tmp_path), "-q"], capsys)
     assert_reported(o, codes=(3,), mentions=["BadMatrix", "polynomial", *mentions])
     assert not (tmp_path / "out" / "s.h5").exists()
@@ -91,7 +90,7 @@ def test_bad_matrices_are_solver_failures(tmp_path, capsys, monkeypatch, case):
     lambda A: A.astype(np.float32).astype(float),                         # symmetric, fewer digits
 ], ids=["roundoff", "complex_zero_imag", "coo", "float32"])
 def test_acceptable_matrices_pass(tmp_path, capsys, monkeypatch, make):
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: _bad_adapter("K", make))
+    use_solver(monkeypatch, lambda name: _bad_adapter("K", make))
     o = run_cli(["run", scene(tmp_path), "-q", "--no-hdf5"], capsys)
     assert o.code == 0, o.err
 
@@ -156,7 +155,7 @@ def _bad_forces(make):
     (lambda F: [list(r) for r in F[:, :-1]] + [[1.0]], ["forces"]),
 ], ids=["nan", "inf", "complex", "shape", "strings", "ragged"])
 def test_bad_forces_are_solver_failures(tmp_path, capsys, monkeypatch, make, mentions):
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: _bad_forces(make))
+    use_solver(monkeypatch, lambda name: _bad_forces(make))
     o = run_cli(["run", scene(tmp_path), "-q"], capsys)
     assert_reported(o, codes=(3,), mentions=["BadForces", *mentions])
 
@@ -171,7 +170,7 @@ def test_bad_tangent_stiffness(tmp_path, capsys, monkeypatch, make, mentions):
         def tangent_stiffness(self, u):
             return make(super().tangent_stiffness(u))
 
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: BadTangent)
+    use_solver(monkeypatch, lambda name: BadTangent)
     o = run_cli(["run", scene(tmp_path, '[analysis.step]\nmethod = "tangent"\n'), "-q"], capsys)
     assert_reported(o, codes=(3,), mentions=["BadTangent", *mentions])
 
@@ -237,7 +236,7 @@ class FileSolver(ExternalSolverAdapter):
     ("binary", ["cannot read the forces"]),
 ])
 def test_external_solver_bad_output_keeps_folder_and_quotes_log(tmp_path, capsys, monkeypatch, mode, mentions):
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: FileSolver)
+    use_solver(monkeypatch, lambda name: FileSolver)
     work = tmp_path / "work"
     s = tmp_path / "f.toml"
     s.write_text(f'[model]\nsolver = "filesolver"\nmode = "{mode}"\nworkdir = "{work}"\n[analysis]\n'

@@ -84,6 +84,23 @@ def test_errors_name_what_exists():
         med.read_nodal_field(path, "base_p__DEPL", step=5)
 
 
+def test_med_and_calculix_result_errors_are_solver_failures(tmp_path):
+    """MedError and CalculiX's ResultFormatError: SolverRunError (CLI exit 3), still ValueError."""
+    from stepnf.cli import report_failure
+    from stepnf.errors import SolverRunError
+
+    ccx = pytest.importorskip("stepnf_calculix.results")
+    bad = tmp_path / "bad.sti"
+    bad.write_text("1 1 2.0\n1 2\n")
+    with pytest.raises(ccx.ResultFormatError) as ccx_error:
+        ccx.read_matrix(bad, 2)
+    with pytest.raises(med.MedError) as med_error:
+        med.read_mesh_nodes(tmp_path / "missing.med")
+    for exc in (ccx_error.value, med_error.value):
+        assert isinstance(exc, SolverRunError) and isinstance(exc, ValueError)
+        assert report_failure(exc) == 3
+
+
 def test_write_read_round_trip(tmp_path):
     """A mesh and a field written by stepnf read back exactly (and by meshio, an independent reader)."""
     from stepnf.geometry import spherical_cap

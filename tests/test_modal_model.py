@@ -4,10 +4,10 @@ import json
 import numpy as np
 import pytest
 
-import stepnf.pipeline as pipeline
 from stepnf.cli import main
 from stepnf.modal_model import ModalModel
 from stepnf.shell import ShellScales
+from systems import use_solver  # noqa: E402
 
 
 class Duffing2(ModalModel):
@@ -38,7 +38,7 @@ class Duffing2(ModalModel):
 
 
 def test_modal_model_json(tmp_path, capsys, monkeypatch):
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: Duffing2)
+    use_solver(monkeypatch, lambda name: Duffing2)
     scene = tmp_path / "s.toml"
     scene.write_text('[model]\nsolver = "duffing"\nw2 = 3.0\n[analysis]\nmaster_modes = ["(0,1)"]\n'
                      'methods = ["nf", "dnf", "md", "smd"]\n[output]\ndir = "o"\n')

@@ -6,7 +6,7 @@ from stepnf.errors import SolverRunError
 from stepnf.scene import parse_scene
 from stepnf.step import n_full_step_evaluations
 from stepnf_polynomial import PolynomialAdapter, save_system
-from systems import random_system
+from systems import random_system, use_solver
 
 
 class Crashing(PolynomialAdapter):
@@ -33,7 +33,7 @@ def scene_for(tmp_path):
 
 
 def test_killed_run_resumes(tmp_path, monkeypatch):
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: Crashing)
+    use_solver(monkeypatch, lambda name: Crashing)
     n_full = n_full_step_evaluations(6) + 2 * 6
     # reference: an uninterrupted run
     Crashing.budget, Crashing.seen = 10**9, 0

@@ -134,8 +134,8 @@ def test_scene_validation():
     p = parse_shell_model(good)
     assert p["R"] == math.inf and p["degree"] == 3 and p["quadrature_degree"] == 6 and not p["inplane_inertia"]
     bad = [
-        ({"mesh": "x.msh"}, "model", "unknown keys"),
-        ({"degree": 4}, "model.degree", "pick one of"),
+        ({"mesh": "x.msh"}, "model.mesh", "unknown key"),
+        ({"degree": 4}, "model.degree", "expected one of"),
         ({"penalty": 1.0}, "model.penalty", r"\[2, 1000\]"),
         ({"inplane_inertia": "no"}, "model.inplane_inertia", "true or false"),
         ({"geometry": {"a": A, "R": 0.1, "h": H}}, "model.geometry.R", ">= a"),

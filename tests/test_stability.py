@@ -16,7 +16,7 @@ import stepnf.pipeline as pipeline
 from stepnf.errors import StepnfError
 from stepnf.scene import parse_scene
 from stepnf_polynomial import save_system
-from systems import full_symmetrize, modal_to_physical, random_system
+from systems import full_symmetrize, modal_to_physical, random_system, use_solver
 
 A, H, E, NU, RHO = 0.15, 0.003, 1.04e11, 0.3, 4400.0
 KIRCHHOFF = {"(2,0)": 5.358, "(0,1)": 9.003}  # free-edge plate, nu = 0.3 (issue 3)
@@ -298,7 +298,7 @@ def _noisy_runs(monkeypatch):
             return round_sig(super()._internal_force(u))
 
     clean = run(cap_scene(R=1.5))
-    monkeypatch.setattr(pipeline, "get_solver", lambda name: SevenDigits)
+    use_solver(monkeypatch, lambda name: SevenDigits)
     noisy = run(cap_scene(R=1.5))
     K = FenicsxAdapter.cap(A, 1.5, H, E=E, nu=NU, rho=RHO, n_core=6, n_ring=2).stiffness_matrix()
     return clean, noisy, K

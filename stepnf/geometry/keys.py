@@ -1,18 +1,22 @@
-"""Scene keys shared by every adapter that meshes the spherical cap (issue 3: one vocabulary).
+"""Scene keys shared by every adapter that meshes the spherical cap (one vocabulary).
 
-``[model.material]`` E, nu, rho and ``[model.geometry]`` shape, a, R (a number
-or "inf"), h and the O-grid resolution keys. Every key has an allowed range
-(the constants below, each with its reason), checked when the scene is read:
-errors name the key, what was given and what is allowed, in the scene's file.
+``[model.material]`` E, nu, rho (:data:`MATERIAL`) and ``[model.geometry]``
+shape, a, R (a number or "inf"), h and the O-grid resolution keys
+(:data:`CAP_GEOMETRY`), declared as :class:`~stepnf.schema.Schema` s that
+every cap adapter includes in its own ``[model]`` keys. Every key has an
+allowed range (the constants below, each with its reason), checked when the
+scene is read; :func:`material`, :func:`cap_dimensions`,
+:func:`cap_resolution` and :func:`cap_geometry` add the checks across keys
+(an impossible cap, a mesh too large).
 """
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
-from ..errors import SceneError, allowed
-from ..scene import check_number, check_text, describe_value
-from .cap import DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
+from ..errors import SceneError
+from ..schema import Key, Schema
+from .cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
 
 MATERIAL_KEYS = ("E", "nu", "rho")
 SHAPES = ("spherical_cap",)
@@ -40,49 +44,51 @@ RESOLUTION_RANGES: dict[str, tuple[int, int]] = {"n_core": (1, 400), "n_ring": (
 CORE_RANGE = (0.0, 1.0 / math.sqrt(2.0))  # open interval: the core square must fit inside the disk
 MAX_CAP_DOFS = 2_000_000
 
+_LENGTH = dict(lo=LENGTH_RANGE[0], hi=LENGTH_RANGE[1], why=" (a length in model units)")
+_MATERIAL = dict(lo=MATERIAL_RANGE[0], hi=MATERIAL_RANGE[1], why=" (in the model's consistent units)")
 
-def check_keys(table: Mapping[str, Any], known: Sequence[str], where: str, scene_file) -> None:
-    """Refuse keys outside ``known`` in the table at ``where``."""
-    unknown = sorted(set(table) - set(known))
-    if unknown:
-        raise SceneError(scene_file, where, f"unknown key(s) {unknown}. Pick from {allowed(known)}")
-
-
-def finite_or_inf(scene_file, key: str, value: Any, *, allow_inf: bool = False,
-                  lo: float | None = None, hi: float | None = None) -> float:
-    """``value`` as a finite float in ``[lo, hi]`` (or ``inf`` when allowed, written ``"inf"``)."""
-    if allow_inf and isinstance(value, str) and value.strip().lower() in ("inf", "infinity"):
-        return math.inf
-    why = ' (or "inf")' if allow_inf else ""
-    return float(check_number(scene_file, key, value, lo=lo, hi=hi, why=why))
-
-
-def number(table: Mapping[str, Any], where: str, key: str, scene_file, *, allow_inf: bool = False,
-           lo: float | None = None, hi: float | None = None) -> float:
-    """``table[key]`` as :func:`finite_or_inf` checks it."""
-    return finite_or_inf(scene_file, f"{where}.{key}", table.get(key), allow_inf=allow_inf, lo=lo, hi=hi)
+#: ``[model.material]``: a linear elastic isotropic material (all three keys, unless the adapter
+#: reads the material from the user's own deck).
+MATERIAL = Schema(
+    Key("E", "number", "Young's modulus", **_MATERIAL),
+    Key("nu", "number", "Poisson's ratio", lo=-1.0, hi=0.5, lo_open=True, hi_open=True, why=" (Poisson's ratio)"),
+    Key("rho", "number", "density (mass per volume)", **_MATERIAL),
+)
+#: ``[model.geometry]`` of the three a, R, h (the shell scaling of a user's mesh, and of every cap).
+CAP_DIMENSIONS = Schema(
+    Key("a", "number", "projected outer radius", **_LENGTH),
+    Key("R", "number", 'radius of curvature ("inf": the flat plate), >= a', allow_inf=True, **_LENGTH),
+    Key("h", "number", "thickness, in [a/1000, a)", **_LENGTH),
+)
+#: The O-grid resolution of a generated 3D cap (:func:`stepnf.geometry.cap.spherical_cap`).
+CAP_RESOLUTION = Schema(
+    Key("n_core", "integer", "elements across the half-width of the core square", default=DEFAULT_N_CORE,
+        lo=RESOLUTION_RANGES["n_core"][0], hi=RESOLUTION_RANGES["n_core"][1]),
+    Key("n_ring", "integer", "element rings from the core square to the edge", default=DEFAULT_N_RING,
+        lo=RESOLUTION_RANGES["n_ring"][0], hi=RESOLUTION_RANGES["n_ring"][1]),
+    Key("n_thick", "integer", "elements through the thickness", default=DEFAULT_N_THICK,
+        lo=RESOLUTION_RANGES["n_thick"][0], hi=RESOLUTION_RANGES["n_thick"][1]),
+    Key("core", "number", "half-width of the core square, a fraction of a", default=DEFAULT_CORE,
+        lo=CORE_RANGE[0], hi=CORE_RANGE[1], lo_open=True, hi_open=True),
+)
+#: ``[model.geometry]`` of a generated 3D cap: its shape, a, R, h and the resolution.
+CAP_GEOMETRY = Schema(Key("shape", "choice", "the generated shape", default="spherical_cap", choices=SHAPES),
+                      *CAP_DIMENSIONS, *CAP_RESOLUTION)
+#: The ``material`` and ``geometry`` tables of a cap adapter's ``[model]``.
+CAP_TABLES = Schema(
+    Key("material", "table", "the material (every element)", table=MATERIAL),
+    Key("geometry", "table", "a generated free-edge cap (or, beside a mesh, its a, R, h)", table=CAP_GEOMETRY),
+)
 
 
 def material(config: Mapping[str, Any], scene_file, *, required: bool = True) -> dict[str, float]:
-    """``[model.material]``: E > 0, -1 < nu < 0.5, rho > 0 (all three when ``required``)."""
-    mat = config.get("material", {})
-    if not isinstance(mat, Mapping):
-        raise SceneError(scene_file, "model.material", f"expected a table with E, nu, rho, got {describe_value(mat)}")
-    check_keys(mat, MATERIAL_KEYS, "model.material", scene_file)
-    missing = [k for k in MATERIAL_KEYS if k not in mat]
+    """``[model.material]`` checked: E > 0, -1 < nu < 0.5, rho > 0 (all three when ``required``)."""
+    out = MATERIAL.check(config.get("material", {}), file=scene_file, where="model.material")
+    missing = [k for k in MATERIAL_KEYS if k not in out]
     if required and missing:
         raise SceneError(scene_file, f"model.material.{missing[0]}",
                          f"missing (also missing: {missing[1:]}); the model needs E, nu, rho" if missing[1:]
                          else "missing; the model needs E, nu, rho")
-    out = {}
-    for k in MATERIAL_KEYS:
-        if k not in mat:
-            continue
-        if k == "nu":
-            out[k] = float(check_number(scene_file, "model.material.nu", mat[k], lo=-1.0, hi=0.5, lo_open=True,
-                                        hi_open=True, why=" (Poisson's ratio)"))
-        else:
-            out[k] = number(mat, "model.material", k, scene_file, lo=MATERIAL_RANGE[0], hi=MATERIAL_RANGE[1])
     return out
 
 
@@ -96,21 +102,13 @@ def cap_dimensions(geom: Mapping[str, Any], scene_file, *, what: str = "a spheri
     missing = [k for k in ("a", "R", "h") if k not in geom]
     if missing:
         raise SceneError(scene_file, "model.geometry", f"missing keys {missing}; {what} needs ['a', 'R', 'h']")
-    a = number(geom, "model.geometry", "a", scene_file)
-    R = number(geom, "model.geometry", "R", scene_file, allow_inf=True)
-    h = number(geom, "model.geometry", "h", scene_file)
-    if a <= 0:
-        raise SceneError(scene_file, "model.geometry.a", f"outer radius must be > 0, got {a}")
-    if h <= 0:
-        raise SceneError(scene_file, "model.geometry.h", f"thickness must be > 0, got {h}")
+    d = CAP_DIMENSIONS.check({k: geom[k] for k in ("a", "R", "h")}, file=scene_file, where="model.geometry")
+    a, R, h = d["a"], d["R"], d["h"]
     if h >= a:
         raise SceneError(scene_file, "model.geometry.h", f"thickness must be smaller than a = {a}, got {h}")
     if R < a:
         raise SceneError(scene_file, "model.geometry.R", f"radius of curvature must be >= a = {a} "
                          f"(or \"inf\" for the flat plate), got {R}")
-    lo, hi = LENGTH_RANGE
-    for key, value in (("a", a), ("h", h)) + ((("R", R),) if math.isfinite(R) else ()):
-        check_number(scene_file, f"model.geometry.{key}", value, lo=lo, hi=hi, why=" (a length in model units)")
     if h * MAX_SLENDERNESS < a:
         raise SceneError(scene_file, "model.geometry.h", f"thickness must be at least a/{MAX_SLENDERNESS:g} = "
                          f"{a / MAX_SLENDERNESS:g} (kappa = a^4/(R^2 h^2) <= (a/h)^2 stays <= 1e6), got {h}")
@@ -130,14 +128,8 @@ def cap_dofs(n_core: int, n_ring: int, n_thick: int) -> int:
 def cap_resolution(geom: Mapping[str, Any], scene_file) -> dict[str, Any]:
     """The resolution keys given in ``[model.geometry]`` (n_core, n_ring, n_thick, core), each within
     its range and the whole mesh within :data:`MAX_CAP_DOFS` dofs."""
-    out: dict[str, Any] = {}
-    for key, (lo, hi) in RESOLUTION_RANGES.items():
-        if key in geom:
-            out[key] = int(check_number(scene_file, f"model.geometry.{key}", geom[key], integer=True, lo=lo, hi=hi))
-    if "core" in geom:
-        out["core"] = float(check_number(scene_file, "model.geometry.core", geom["core"], lo=CORE_RANGE[0],
-                                         hi=CORE_RANGE[1], lo_open=True, hi_open=True,
-                                         why=" (half-width of the core square, a fraction of a)"))
+    out = CAP_RESOLUTION.check({k: geom[k] for k in RESOLUTION_KEYS if k in geom}, file=scene_file,
+                               where="model.geometry")
     n = {"n_core": DEFAULT_N_CORE, "n_ring": DEFAULT_N_RING, "n_thick": DEFAULT_N_THICK, **out}
     dofs = cap_dofs(n["n_core"], n["n_ring"], n["n_thick"])
     if dofs > MAX_CAP_DOFS:
@@ -150,20 +142,8 @@ def cap_resolution(geom: Mapping[str, Any], scene_file) -> dict[str, Any]:
 
 def cap_geometry(config: Mapping[str, Any], scene_file) -> dict[str, Any]:
     """``[model.geometry]`` of a generated cap: ``{"shape", "a", "R", "h", "resolution"}`` (see
-    :func:`cap_dimensions` and :func:`cap_resolution`)."""
-    geom = config.get("geometry")
-    if not isinstance(geom, Mapping):
-        raise SceneError(scene_file, "model.geometry", f"expected a table with shape, a, R, h, got "
-                         f"{describe_value(geom)}")
-    check_keys(geom, GEOMETRY_KEYS, "model.geometry", scene_file)
-    shape = geom.get("shape", "spherical_cap")
-    if shape not in SHAPES:
-        raise SceneError(scene_file, "model.geometry.shape", f"got {describe_value(shape)}. Pick one of "
-                         f"{allowed(SHAPES)}")
+    :data:`CAP_GEOMETRY`, :func:`cap_dimensions` and :func:`cap_resolution`)."""
+    geom = CAP_GEOMETRY.check(config.get("geometry"), file=scene_file, where="model.geometry")
     a, R, h = cap_dimensions(geom, scene_file)
-    return {"shape": shape, "a": a, "R": R, "h": h, "resolution": cap_resolution(geom, scene_file)}
-
-
-def text_value(config: Mapping[str, Any], key: str, scene_file, what: str = "a file name") -> str:
-    """``config[key]`` as a non-empty string without NUL (a file or folder name, a command)."""
-    return check_text(scene_file, f"model.{key}", config.get(key), what)
+    return {"shape": geom.get("shape", "spherical_cap"), "a": a, "R": R, "h": h,
+            "resolution": cap_resolution(geom, scene_file)}

@@ -7,7 +7,9 @@ import numpy as np
 
 
 @lru_cache(maxsize=16)
-def _rule(n_panels: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+def panel_rule(n_panels: int, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Legendre points and weights of ``order`` per panel on [0, 1] cut into ``n_panels`` equal
+    panels (read-only arrays, cached)."""
     x, w = np.polynomial.legendre.leggauss(order)
     edges = np.linspace(0.0, 1.0, n_panels + 1)
     h = np.diff(edges)
@@ -29,7 +31,7 @@ def radial_panels(lam_max: float) -> int:
 
 def radial_rule(lam_max: float, order: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """Nodes and weights on [0, 1] (without the ``r`` of ``r dr``), see :func:`radial_panels`."""
-    return _rule(radial_panels(lam_max), order)
+    return panel_rule(radial_panels(lam_max), order)
 
 
 def trig(kind: str, k: int, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -56,12 +56,13 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import SceneError, allowed
-from ..scene import check_number, interval
+from ..errors import SceneError
+from ..config import check_number
+from ..schema import Key, Schema
 from ..modal_model import ModalModel
 from ..shell import ShellScales
 from ._couplings import laplacian, trilinear
-from ._quadrature import _rule, angular_factors, radial_panels
+from ._quadrature import angular_factors, panel_rule, radial_panels
 from ._radial import RadialFamily, angular_weight, clamped_plate_family, free_plate_family
 
 #: Defaults. k_max = 8 makes the couplings of every mode with k <= 4 complete (the paper's six
@@ -118,6 +119,22 @@ class VonKarmanShell(ModalModel):
     """
 
     name = "vonkarman"
+    #: The ``[model]`` keys (``stepnf solvers --keys vonkarman``): ranges :data:`RANGES`, defaults
+    #: :data:`DEFAULTS`.
+    model_keys = Schema(
+        Key("kappa", "number", "aspect ratio a^4/(R^2 h^2) of the shell (0: the flat plate)", required=True,
+            lo=RANGES["kappa"][0], hi=RANGES["kappa"][1]),
+        Key("nu", "number", "Poisson's ratio", default=DEFAULTS["nu"], lo=RANGES["nu"][0], hi=RANGES["nu"][1],
+            lo_open=True, hi_open=True),
+        Key("k_max", "integer", "largest nodal-diameter number of the transverse modes", default=DEFAULTS["k_max"],
+            lo=RANGES["k_max"][0], hi=RANGES["k_max"][1]),
+        Key("n_transverse", "integer", "shell modes kept per nodal-diameter number and companion",
+            default=DEFAULTS["n_transverse"], lo=RANGES["n_transverse"][0], hi=RANGES["n_transverse"][1]),
+        Key("n_galerkin", "integer", "free-plate modes per k in the Ritz basis, >= n_transverse (default "
+            "max(20, n_transverse + 12))", lo=RANGES["n_galerkin"][0], hi=RANGES["n_galerkin"][1]),
+        Key("n_airy", "integer", "Airy functions per k", default=DEFAULTS["n_airy"], lo=RANGES["n_airy"][0],
+            hi=RANGES["n_airy"][1]),
+    )
 
     def __init__(self, kappa: float = 0.0, nu: float = DEFAULTS["nu"], k_max: int = DEFAULTS["k_max"],
                  n_transverse: int = DEFAULTS["n_transverse"], n_galerkin: int | None = None,
@@ -136,31 +153,15 @@ class VonKarmanShell(ModalModel):
 
     # ------------------------------------------------------------------ scene
     @classmethod
-    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path | None = None,
-                    scene_file: Path | None = None) -> "VonKarmanShell":
-        """Build from the ``[model]`` table: ``kappa`` (required), ``nu``, ``k_max``,
-        ``n_transverse``, ``n_galerkin``, ``n_airy`` (defaults: :data:`DEFAULTS`, ranges:
-        :data:`RANGES`); every key is checked before anything is computed."""
-        keys = ["kappa", "nu", "k_max", "n_transverse", "n_galerkin", "n_airy"]
-        unknown = sorted(set(config) - set(keys))
-        if unknown:
-            raise SceneError(scene_file, f"model.{unknown[0]}",
-                             f"unknown key for solver 'vonkarman'; allowed keys: {allowed(keys)}")
-        if "kappa" not in config:
-            raise SceneError(scene_file, "model.kappa", "missing: the shell aspect ratio a^4/(R^2 h^2), a number "
-                             f"in {interval(*RANGES['kappa'])}")
-        kw: dict[str, Any] = {}
-        for key in keys:
-            if key in config:
-                lo, hi = RANGES[key]
-                integer = key not in ("kappa", "nu")
-                kw[key] = check_number(scene_file, f"model.{key}", config[key], integer=integer, lo=lo, hi=hi,
-                                       lo_open=key == "nu", hi_open=key == "nu")
+    def validate_config(cls, config: Mapping[str, Any], *, base_dir: Path | str = ".",
+                        scene_file: Path | str | None = None) -> dict[str, Any]:
+        """The ``[model]`` keys (:data:`MODEL_KEYS`), and ``n_galerkin >= n_transverse``."""
+        kw = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
         n_tr = kw.get("n_transverse", DEFAULTS["n_transverse"])
         n_gal = kw.get("n_galerkin", max(DEFAULTS["n_galerkin"], n_tr + 12))
-        _check(float(kw["kappa"]), float(kw.get("nu", DEFAULTS["nu"])), kw.get("k_max", DEFAULTS["k_max"]), n_tr,
-               n_gal, kw.get("n_airy", DEFAULTS["n_airy"]), scene_file)
-        return cls(**kw)
+        _check(kw["kappa"], kw.get("nu", DEFAULTS["nu"]), kw.get("k_max", DEFAULTS["k_max"]), n_tr, n_gal,
+               kw.get("n_airy", DEFAULTS["n_airy"]), scene_file)
+        return kw
 
     # ------------------------------------------------------------------ build
     def _build(self) -> None:
@@ -169,7 +170,7 @@ class VonKarmanShell(ModalModel):
         plates = {k: _family("plate", k, self.n_galerkin, nu) for k in range(kmax + 1)}
         lam_max = max(max(f.lam.max() for f in self._airy.values()), max(f.lam.max() for f in plates.values()))
         panels = radial_panels(lam_max)
-        self._r, self._w = _rule(panels, 16)
+        self._r, self._w = panel_rule(panels, 16)
         r, w = self._r, self._w
         self._airy_r = {k: _table("airy", k, self.n_airy, 0.0, panels)[0] for k in self._airy}
         self._xi4 = {k: f.lam**4 for k, f in self._airy.items()}
@@ -316,7 +317,7 @@ def _family(kind: str, k: int, n: int, nu: float) -> RadialFamily:
 @lru_cache(maxsize=256)
 def _table(kind: str, k: int, n: int, nu: float, panels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``R, R', R''`` of :func:`_family` on the radial rule with ``panels`` panels (read-only, cached)."""
-    out = _family(kind, k, n, nu).evaluate(_rule(panels, 16)[0])
+    out = _family(kind, k, n, nu).evaluate(panel_rule(panels, 16)[0])
     for a in out:
         a.setflags(write=False)
     return out

@@ -10,23 +10,26 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.errors import SceneError, allowed
-from stepnf.geometry import keys as cap_keys
+from stepnf.external import (EXECUTABLE, RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene,
+                             missing_output, require_files, solid_model_keys)
+from stepnf.external.keys import THREADS
 from stepnf.geometry.keys import MATERIAL_KEYS
-from stepnf.geometry.checks import units_warning
 from stepnf.geometry.solid import CapSolid
-from stepnf.external import CommandTemplate, ExternalSolverAdapter, missing_output, require_files, run_keys
+from stepnf.schema import Key, Schema
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
 from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
 
-#: Scene keys of ``[model]`` (besides ``solver``).
-MODEL_KEYS = ("element", "geometry", "material", "mesh", "template", "executable", "timeout",
-              "workdir", "keep", "threads", "parallel_runs")
+ELEMENTS = ("hex20",)
+#: Scene keys of ``[model]`` (besides ``solver``; ``stepnf solvers --keys calculix``).
+MODEL_KEYS = Schema(
+    *solid_model_keys(ELEMENTS, (".inp",), "a user's solid mesh: *NODE and *ELEMENT blocks of C3D* elements"),
+    Key("template", "file", "a job template with ${mesh_file}, ${steps} (and ${E}, ${nu}, ${rho}, ${title} if "
+        "used) instead of the shipped templates/job.inp", what="a job template file name"),
+    EXECUTABLE, THREADS, *RUN_KEYS,
+)
 #: Largest number of ``*BOUNDARY`` lines (fields x dofs) in one deck; bigger batches are split over runs.
 MAX_BOUNDARY_LINES = 4_000_000
-
-ELEMENTS = ("hex20",)
 
 
 def shipped_template(name: str) -> CommandTemplate:
@@ -36,7 +39,7 @@ def shipped_template(name: str) -> CommandTemplate:
 
 
 
-class CalculixAdapter(CapSolid, ExternalSolverAdapter):
+class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     """A solid model run by CalculiX ``ccx`` as a black box.
 
     Dofs: ``ux, uy, uz`` of every node, node by node in the order of
@@ -58,6 +61,9 @@ class CalculixAdapter(CapSolid, ExternalSolverAdapter):
 
     name = "calculix"
     program = "ccx"
+    model_keys = MODEL_KEYS
+    #: a job template may carry its own material: [model.material] is optional with a mesh
+    mesh_needs_material = False
     #: :meth:`tangent_stiffness` and :meth:`sharp_step` are available (14-digit tangents).
     provides_tangent_stiffness = True
     #: the .dat file prints 7 digits: STEP is more precise at larger amplitudes (the force is an
@@ -126,11 +132,7 @@ class CalculixAdapter(CapSolid, ExternalSolverAdapter):
         m = read_inp_mesh(path)
         return cls(m.node_ids, m.points, m.blocks, **kw)
 
-    @classmethod
-    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
-                    ) -> "CalculixAdapter":
-        """Build from the scene's ``[model]`` table (keys in the package docstring)."""
-        return _from_config(cls, dict(config), Path(base_dir), scene_file)
+    from_mesh_file = from_inp  # the ``mesh`` key (SolidFromScene)
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
@@ -245,42 +247,3 @@ def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:
     """Row/column ``r`` of ``A`` becomes row/column ``index[r]``."""
     C = A.tocoo()
     return sp.csr_matrix((C.data, (index[C.row], index[C.col])), shape=A.shape)
-
-
-# ------------------------------------------------------------------ scene
-def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CalculixAdapter:
-    cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
-    run = run_keys(config, base_dir, scene_file, ints=("threads", "parallel_runs"))
-    if "executable" in config:
-        run["executable"] = cap_keys.text_value(config, "executable", scene_file, "an executable name or path")
-    if "template" in config:
-        tpl = base_dir / cap_keys.text_value(config, "template", scene_file)
-        if not tpl.is_file():
-            raise SceneError(scene_file, "model.template", f"template file {tpl} does not exist")
-        run["template"] = tpl
-
-    material = cap_keys.material(config, scene_file, required="geometry" in config)
-
-    element = config.get("element", "hex20")
-    if element not in ELEMENTS:
-        raise SceneError(scene_file, "model.element", f"got {element!r}; CalculiX meshes shells with 20-node "
-                         f"bricks (C3D20). Pick one of {allowed(ELEMENTS)}")
-    has_mesh, has_geom = "mesh" in config, "geometry" in config
-    if has_mesh == has_geom:
-        raise SceneError(scene_file, "model", "give exactly one of mesh = \"file.inp\" or a [model.geometry] table")
-    try:
-        if has_mesh:
-            path = base_dir / cap_keys.text_value(config, "mesh", scene_file)
-            if path.suffix.lower() != ".inp" or not path.is_file():
-                raise SceneError(scene_file, "model.mesh", f"expected an existing .inp file, got {str(path)!r}")
-            ad = cls.from_inp(path, material=material, **run)
-            units_warning(ad.points, material, source=path)
-            return ad
-        g = cap_keys.cap_geometry(config, scene_file)
-        ad = cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
-        units_warning(ad.points, material, source=scene_file, thickness=g["h"])
-        return ad
-    except ValueError as exc:
-        if isinstance(exc, SceneError):
-            raise
-        raise SceneError(scene_file, "model", str(exc)) from exc

@@ -18,11 +18,17 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 
+from stepnf.errors import SolverRunError
+
 _HEADER = re.compile(r"^\s*forces \(fx,fy,fz\) for set (\S+) and time\s+(\S+)\s*$", re.M)
 
 
-class ResultFormatError(ValueError):
-    """A CalculiX result file does not hold what was expected."""
+class ResultFormatError(SolverRunError, ValueError):
+    """A CalculiX result file does not hold what was expected.
+
+    A solver failure (:class:`stepnf.errors.SolverRunError`, exit code 3 of the
+    CLI) and still a :class:`ValueError`, as before it joined stepnf's errors.
+    """
 
 
 def read_dat_forces(path: str | Path, node_ids: np.ndarray, n_steps: int) -> np.ndarray:

@@ -12,16 +12,15 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.errors import SceneError, SolverRunError, allowed
-from stepnf.geometry import keys as cap_keys
+from stepnf.errors import SolverRunError
+from stepnf.external import (RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene, missing_output,
+                             require_files, solid_model_keys)
+from stepnf.external.keys import MEMORY_MB, NCPUS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
-from stepnf.external import CommandTemplate, ExternalSolverAdapter, missing_output, require_files, run_keys
+from stepnf.schema import Key, Schema
 
 from .med import MedError, add_nodal_field, read_mesh_nodes, read_nodal_steps, write_med
-
-MODEL_KEYS = ("element", "geometry", "material", "mesh", "mesh_name", "templates", "command", "version",
-              "ncpus", "memory_mb", "timeout", "workdir", "keep", "parallel_runs")
 
 ELEMENTS = ("hex20",)
 TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export")
@@ -29,6 +28,18 @@ COMPONENTS = ("DX", "DY", "DZ")
 #: Default command; ``${export}`` and ``${workdir}`` are filled in. A docker image works too, e.g.
 #: ``docker run --rm -v ${workdir}:${workdir} IMAGE run_aster ${export}``.
 DEFAULT_COMMAND = "run_aster ${export}"
+MED_SUFFIXES = (".med", ".rmed", ".mmed")
+#: Scene keys of ``[model]`` (besides ``solver``; ``stepnf solvers --keys code_aster``).
+MODEL_KEYS = Schema(
+    *solid_model_keys(ELEMENTS, MED_SUFFIXES, "a user's MED volume mesh"),
+    Key("mesh_name", "text", "name of the mesh inside the MED file (default: its first mesh)", what="a mesh name"),
+    Key("templates", "folder", f"a folder of templates overriding the shipped ones (any of {list(TEMPLATE_NAMES)})",
+        what="a template folder name"),
+    Key("command", "text", "the command running one job; ${export} and ${workdir} are filled in",
+        default=DEFAULT_COMMAND, what="a command"),
+    Key("version", "text", "code_aster version of the .export file", default="stable", what="a version name"),
+    NCPUS, MEMORY_MB, *RUN_KEYS,
+)
 FIELD_IN, FIELD_OUT = "U", "F"
 REAL = "%.17g"
 
@@ -52,7 +63,7 @@ def triplets_to_matrix(values, rows, cols, n: int) -> sp.csr_matrix:
 
 
 
-class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
+class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     """A solid model run by code_aster as a black box (``run_aster`` or a docker image).
 
     Dofs: ``DX, DY, DZ`` of every node of the MED mesh, node by node (dof
@@ -76,6 +87,7 @@ class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
 
     name = "code_aster"
     program = "run_aster"
+    model_keys = MODEL_KEYS
 
     def __init__(self, points: np.ndarray, *, material: Mapping[str, float], cells: np.ndarray | None = None,
                  cell_type: str = "hexahedron20", mesh_file: str | Path | None = None, mesh_name: str = "mesh",
@@ -128,10 +140,7 @@ class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
         name = mesh_name or first_mesh(path)
         return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, **kw)
 
-    @classmethod
-    def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None
-                    ) -> "CodeAsterAdapter":
-        return _from_config(cls, dict(config), Path(base_dir), scene_file)
+    from_mesh_file = from_med  # the ``mesh`` key (SolidFromScene)
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
@@ -235,39 +244,3 @@ class CodeAsterAdapter(CapSolid, ExternalSolverAdapter):
                                           f"the {n} translations DX DY DZ of {n // 3} nodes and nothing else")
         perm = lambda A: sp.csr_matrix((A.tocoo().data, (index[A.tocoo().row], index[A.tocoo().col])), shape=(n, n))
         return perm(K), perm(M)
-
-
-# ------------------------------------------------------------------ scene
-def _from_config(cls, config: dict, base_dir: Path, scene_file) -> CodeAsterAdapter:
-    cap_keys.check_keys(config, MODEL_KEYS, "model", scene_file)
-    kw: dict[str, Any] = {}
-    for key in ("command", "version", "mesh_name"):
-        if key in config:
-            if not isinstance(config[key], str) or not config[key].strip():
-                raise SceneError(scene_file, f"model.{key}", f"expected a non-empty string, got {config[key]!r}")
-            kw[key] = config[key]
-    kw.update(run_keys(config, base_dir, scene_file, ints=("ncpus", "memory_mb", "parallel_runs")))
-    if "templates" in config:
-        folder = base_dir / cap_keys.text_value(config, "templates", scene_file, "a folder name")
-        if not folder.is_dir():
-            raise SceneError(scene_file, "model.templates", f"template folder {folder} does not exist; it may hold "
-                             f"any of {list(TEMPLATE_NAMES)}")
-        kw["templates"] = folder
-    material = cap_keys.material(config, scene_file)
-    element = config.get("element", "hex20")
-    if element not in ELEMENTS:
-        raise SceneError(scene_file, "model.element", f"got {element!r}. Pick one of {allowed(ELEMENTS)}")
-    if ("mesh" in config) == ("geometry" in config):
-        raise SceneError(scene_file, "model", "give exactly one of mesh = \"file.med\" or a [model.geometry] table")
-    try:
-        if "mesh" in config:
-            path = base_dir / cap_keys.text_value(config, "mesh", scene_file)
-            if path.suffix.lower() not in (".med", ".rmed", ".mmed") or not path.is_file():
-                raise SceneError(scene_file, "model.mesh", f"expected an existing MED file, got {str(path)!r}")
-            return cls.from_med(path, material=material, **kw)
-        g = cap_keys.cap_geometry(config, scene_file)
-        return cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **kw)
-    except ValueError as exc:
-        if isinstance(exc, SceneError):
-            raise
-        raise SceneError(scene_file, "model", str(exc)) from exc

@@ -27,6 +27,8 @@ from typing import Sequence
 
 import numpy as np
 
+from stepnf.errors import SolverRunError
+
 NO_PROFILE = "MED_NO_PROFILE_INTERNAL"
 #: MED geometry codes and names of the cells written here.
 MED_CELLS = {"hexahedron20": ("H20", 320), "hexahedron": ("HE8", 308), "hexahedron27": ("H27", 327)}
@@ -37,8 +39,14 @@ MED_FROM_VTK = {
 }
 
 
-class MedError(ValueError):
-    """A MED file does not hold what was asked for."""
+class MedError(SolverRunError, ValueError):
+    """A MED file does not hold what was asked for.
+
+    A solver failure (:class:`stepnf.errors.SolverRunError`, exit code 3 of the
+    CLI) and still a :class:`ValueError`, as before it joined stepnf's errors:
+    the adapter turns an unreadable user's mesh into a
+    :class:`stepnf.errors.SceneError` by catching ``ValueError``.
+    """
 
 
 @dataclass

@@ -2,6 +2,9 @@
 
 Registered under the entry-point group ``stepnf.solvers`` as ``fenicsx``.
 Importing this package does not import dolfinx; the adapter does when built.
+It imports both variants (:mod:`stepnf_fenicsx.adapter`): the serial
+:class:`FenicsxAdapter` (:mod:`~stepnf_fenicsx.serial`) and the distributed one
+its builders return under ``mpirun -n N>1`` (:mod:`~stepnf_fenicsx.parallel`).
 """
 from __future__ import annotations
 

@@ -2,40 +2,30 @@
 
 A subclass sets ``self._forms`` (an object with ``mass()``, ``stiffness()``,
 ``internal_force(u)``, ``quadratic(u, v)``, ``cubic(u, v, w)``), ``self._n``
-(number of dofs) and ``self.timings``; M and K are assembled once, on first use.
+(number of dofs) and ``self.timings``; M and K are assembled once, on first use
+(:class:`stepnf.lazy_matrices.LazyMatrices`, timings ``"mass"`` and ``"stiffness"``).
 """
 from __future__ import annotations
-
-import time
 
 import numpy as np
 import scipy.sparse as sp
 
 from stepnf.adapter import SolverAdapter
+from stepnf.lazy_matrices import LazyMatrices
 
 
-class FormsAdapter(SolverAdapter):
+class FormsAdapter(LazyMatrices, SolverAdapter):
     provides_intrusive_tensors = True
-    _K: sp.csr_matrix | None = None
-    _M: sp.csr_matrix | None = None
 
     @property
     def n_dofs(self) -> int:
         return self._n
 
-    def mass_matrix(self) -> sp.csr_matrix:
-        if self._M is None:
-            t0 = time.perf_counter()
-            self._M = self._forms.mass()
-            self.timings["mass"] = time.perf_counter() - t0
-        return self._M
+    def _build_mass(self) -> sp.csr_matrix:
+        return self._forms.mass()
 
-    def stiffness_matrix(self) -> sp.csr_matrix:
-        if self._K is None:
-            t0 = time.perf_counter()
-            self._K = self._forms.stiffness()
-            self.timings["stiffness"] = time.perf_counter() - t0
-        return self._K
+    def _build_stiffness(self) -> sp.csr_matrix:
+        return self._forms.stiffness()
 
     def _internal_force(self, u: np.ndarray) -> np.ndarray:
         return self._forms.internal_force(u)

@@ -51,7 +51,7 @@ import scipy.sparse as sp
 from stepnf.errors import NumericalError
 
 from . import _compat
-from .adapter import FenicsxAdapter
+from .serial import FenicsxAdapter
 
 
 def is_root() -> bool:
@@ -124,7 +124,7 @@ def gather_matrix(A, layout: GlobalLayout) -> sp.csr_matrix:
     return sp.csr_matrix((vals, cols, ptr), shape=(layout.n, layout.n))
 
 
-class DistributedFenicsxAdapter(FenicsxAdapter):
+class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
     """:class:`FenicsxAdapter` with its mesh distributed over ``MPI.COMM_WORLD`` (see the module docstring).
 
     Declares ``provides_eigenmodes`` (SLEPc, shift-invert with MUMPS, the
@@ -178,19 +178,11 @@ class DistributedFenicsxAdapter(FenicsxAdapter):
             self.timings["assembly_petsc"] = time.perf_counter() - t0
         return self._Kp, self._Mp
 
-    def stiffness_matrix(self) -> sp.csr_matrix:
-        if self._K is None:
-            t0 = time.perf_counter()
-            self._K = gather_matrix(self._petsc_matrices()[0], self.layout)
-            self.timings["stiffness"] = time.perf_counter() - t0
-        return self._K
+    def _build_stiffness(self) -> sp.csr_matrix:
+        return gather_matrix(self._petsc_matrices()[0], self.layout)
 
-    def mass_matrix(self) -> sp.csr_matrix:
-        if self._M is None:
-            t0 = time.perf_counter()
-            self._M = gather_matrix(self._petsc_matrices()[1], self.layout)
-            self.timings["mass"] = time.perf_counter() - t0
-        return self._M
+    def _build_mass(self) -> sp.csr_matrix:
+        return gather_matrix(self._petsc_matrices()[1], self.layout)
 
     def _internal_force(self, u: np.ndarray) -> np.ndarray:
         return self._assemble(self._forms.f_form, [(self._forms.u, u)])

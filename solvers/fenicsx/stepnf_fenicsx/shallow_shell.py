@@ -48,7 +48,7 @@ from stepnf.geometry.labels import ModeLabeler
 
 from . import _compat
 from ._forms_adapter import FormsAdapter
-from .shallow_shell_config import DEFAULTS, parse_shell_model
+from .shallow_shell_config import DEFAULTS, MODEL_KEYS, parse_shell_model
 from .shallow_shell_mesh import disk_triangle6
 
 #: In-plane mass factor used when ``inplane_inertia = false`` (see the module docstring). Not
@@ -100,6 +100,7 @@ class ShallowShellAdapter(FormsAdapter):
     """
 
     name = "fenicsx_shell"
+    model_keys = MODEL_KEYS
     provides_intrusive_tensors = True
 
     def __init__(self, a: float, R: float, h: float, *, E: float, nu: float, rho: float,
@@ -141,9 +142,15 @@ class ShallowShellAdapter(FormsAdapter):
         self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
 
     @classmethod
+    def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path | None = None,
+                        scene_file: str | Path | None = None) -> dict[str, Any]:
+        """The ``[model]`` keys (:data:`~stepnf_fenicsx.shallow_shell_config.MODEL_KEYS`), defaults filled in."""
+        return parse_shell_model(config, scene_file)
+
+    @classmethod
     def from_config(cls, config: Mapping[str, Any], *, base_dir: Path | None = None,
                     scene_file: Path | None = None) -> "ShallowShellAdapter":
-        p = parse_shell_model(config, scene_file)
+        p = cls.validate_config(config, base_dir=base_dir, scene_file=scene_file)
         try:
             return cls(p.pop("a"), p.pop("R"), p.pop("h"), **p)
         except ValueError as exc:

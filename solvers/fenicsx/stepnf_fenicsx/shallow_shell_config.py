@@ -28,60 +28,48 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from stepnf.errors import SceneError, allowed
 from stepnf.geometry import keys as cap_keys
-from stepnf.scene import check_bool, check_number, describe_value
+from stepnf.schema import Key, Schema
 
-from .config import _table  # one parser for both FEniCSx models
-
-MODEL_KEYS = ("geometry", "material", "inplane_inertia", "penalty", "degree", "quadrature_degree")
-GEOMETRY_KEYS = ("shape", "a", "R", "h", "n_rings", "grading")
-MATERIAL_KEYS = ("E", "nu", "rho")
 #: Defaults of the optional keys (``quadrature_degree``: ``2 * degree``). Resolution: 12 rings, P3,
 #: 11 991 dofs: frequencies of the first 24 modes within 3e-5 of the von Karman model, Gamma of the
 #: six test modes within 0.01% (0.13% for (0,2), 0.9% for (2,1) near a 1:2 resonance).
 DEFAULTS: dict[str, Any] = {"inplane_inertia": False, "penalty": 10.0, "degree": 3, "quadrature_degree": None,
                             "n_rings": 12, "grading": 1.0}
 
+#: ``[model.geometry]``: the 3D caps' a, R, h and this model's own resolution keys.
+GEOMETRY = Schema(
+    Key("shape", "choice", "the shape", default="spherical_cap", choices=cap_keys.SHAPES),
+    *cap_keys.CAP_DIMENSIONS,
+    # about 81 n_rings^2 dofs with P3 (11 991 at 12 rings): 200 rings is 3.2 million, the ceiling of the 3D caps
+    Key("n_rings", "integer", "rings of vertices from the centre to the edge", default=DEFAULTS["n_rings"],
+        lo=2, hi=200),
+    Key("grading", "number", "outer ring spacing / mean ring spacing", default=DEFAULTS["grading"], lo=0.0,
+        hi=1.0, lo_open=True),
+)
+#: The keys of ``[model]`` (``stepnf solvers --keys fenicsx_shell``).
+MODEL_KEYS = Schema(
+    Key("inplane_inertia", "bool", "keep the in-plane inertia (false: von Karman's quasi-static in-plane motion)",
+        default=DEFAULTS["inplane_inertia"]),
+    Key("penalty", "number", "interior-penalty factor alpha of the bending term", default=DEFAULTS["penalty"],
+        lo=2.0, hi=1000.0),
+    Key("degree", "choice", "polynomial degree of (u, v, w)", default=DEFAULTS["degree"], choices=(2, 3)),
+    Key("quadrature_degree", "integer", "quadrature degree of the forms (default 2 degree)", lo=2, hi=12),
+    Key("material", "table", "the material", table=cap_keys.MATERIAL, required=True),
+    Key("geometry", "table", "the shallow cap and its mesh resolution", table=GEOMETRY, required=True),
+)
+
 
 def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, Any]:
     """Check the keys; return ``{a, R, h, n_rings, grading, E, nu, rho, inplane_inertia, penalty,
     quadrature_degree}`` with defaults filled in (:data:`DEFAULTS`)."""
     f = scene_file
-    unknown = sorted(set(config) - set(MODEL_KEYS))
-    if unknown:
-        raise SceneError(f, "model", f"unknown keys {unknown} for solver 'fenicsx_shell'. Allowed keys: "
-                         f"{allowed(('solver',) + MODEL_KEYS)}")
-    out: dict[str, Any] = {}
-    out["inplane_inertia"] = check_bool(f, "model.inplane_inertia", config.get("inplane_inertia",
-                                                                              DEFAULTS["inplane_inertia"]))
-    pen = cap_keys.finite_or_inf(f, "model.penalty", config.get("penalty", DEFAULTS["penalty"]))
-    if not 2.0 <= pen <= 1000.0:
-        raise SceneError(f, "model.penalty", f"interior-penalty factor must lie in [2, 1000], got {pen}")
-    out["penalty"] = pen
-    deg = config.get("degree", DEFAULTS["degree"])
-    if isinstance(deg, bool) or not isinstance(deg, int) or deg not in (2, 3):
-        raise SceneError(f, "model.degree", f"polynomial degree of (u, v, w): pick one of [2, 3], got "
-                         f"{describe_value(deg)}")
-    out["degree"] = deg
-    out["quadrature_degree"] = check_number(f, "model.quadrature_degree", config.get("quadrature_degree", 2 * deg),
-                                            integer=True, lo=2, hi=12)
-
-    if "material" not in config:
-        raise SceneError(f, "model.material", f"missing table; a material needs {allowed(MATERIAL_KEYS)}")
-    mat = cap_keys.material(config, f)  # the keys every cap adapter shares
-    E, nu, rho = mat["E"], mat["nu"], mat["rho"]
-    out.update(E=E, nu=nu, rho=rho)
-
-    geo = _table(config, "geometry", GEOMETRY_KEYS, f, required=True)
-    if "shape" in geo and geo["shape"] != "spherical_cap":
-        raise SceneError(f, "model.geometry.shape", f"unknown shape {describe_value(geo['shape'])}. Pick one of "
-                         f"{allowed(('spherical_cap',))}")
+    c = MODEL_KEYS.check(config, file=f, where="model", reserved=("solver",))
+    out = {k: c.get(k, DEFAULTS[k]) for k in ("inplane_inertia", "penalty", "degree")}
+    out["quadrature_degree"] = c.get("quadrature_degree", 2 * out["degree"])
+    out.update(cap_keys.material(c, f))  # all three constants
+    geo = c["geometry"]
     a, R, h = cap_keys.cap_dimensions(geo, f, what="a shallow shell")
-    # about 81 n_rings^2 dofs with P3 (11 991 at 12 rings): 200 rings is 3.2 million, the ceiling of the 3D caps
-    nr = check_number(f, "model.geometry.n_rings", geo.get("n_rings", DEFAULTS["n_rings"]), integer=True, lo=2, hi=200)
-    gr = cap_keys.finite_or_inf(f, "model.geometry.grading", geo.get("grading", DEFAULTS["grading"]))
-    if not 0.0 < gr <= 1.0:
-        raise SceneError(f, "model.geometry.grading", f"outer/mean ring spacing must lie in (0, 1], got {gr}")
-    out.update(a=a, R=R, h=h, n_rings=nr, grading=gr)
+    out.update(a=a, R=R, h=h, n_rings=geo.get("n_rings", DEFAULTS["n_rings"]),
+               grading=geo.get("grading", DEFAULTS["grading"]))
     return out

@@ -21,7 +21,7 @@ from numpy.lib import format as npy_format
 
 from stepnf.adapter import DIRECTIONS, SolverAdapter
 from stepnf.errors import SceneError
-from stepnf.scene import check_text
+from stepnf.schema import Key, Schema
 
 REQUIRED = ("M", "K", "G", "H")
 OPTIONAL = ("coordinates", "directions", "length")
@@ -183,6 +183,10 @@ class PolynomialAdapter(SolverAdapter):
     """Exact cubic internal force from given tensors; offers the intrusive tensors too."""
 
     name = "polynomial"
+    #: The ``[model]`` keys (``stepnf solvers --keys polynomial``).
+    model_keys = Schema(Key("file", "file", "the system: an .npz or HDF5 file with arrays M, K, G, H (and optional "
+                            "coordinates, directions, length)", required=True, suffixes=(".npz", ".h5", ".hdf5"),
+                            what="an .npz or HDF5 file with arrays M, K, G, H"))
     provides_intrusive_tensors = True
     provides_tangent_stiffness = True
 
@@ -207,17 +211,8 @@ class PolynomialAdapter(SolverAdapter):
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None):
-        unknown = sorted(set(config) - {"file"})
-        if unknown:
-            raise SceneError(scene_file, f"model.{unknown[0]}",
-                             "unknown key for solver 'polynomial'; allowed keys: ['file']")
-        if "file" not in config:
-            raise SceneError(scene_file, "model.file", "solver 'polynomial' needs the key 'file' "
-                             "(an .npz or HDF5 file with arrays M, K, G, H)")
-        path = Path(check_text(scene_file, "model.file", config["file"], "the name of an .npz or HDF5 file with "
-                               "arrays M, K, G, H, relative to the scene"))
-        if not path.is_absolute():
-            path = Path(base_dir) / path
+        """Load the system named by ``file`` (:data:`MODEL_KEYS`); an unusable file is a SceneError."""
+        path = cls.validate_config(config, base_dir=base_dir, scene_file=scene_file)["file"]
         try:
             data = load_system(path)
             return cls(data["M"], data["K"], data["G"], data["H"],
