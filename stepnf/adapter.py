@@ -179,6 +179,12 @@ class SolverAdapter(FromScene):
         ext = ext[ext > 0]
         return float(ext.min()) if ext.size else None
 
+    def free_dof_map(self) -> Any | None:
+        """A :class:`stepnf.boundary.FreeDofs` when boundary conditions removed dofs: how the dofs this
+        adapter exposes sit among all the dofs of its mesh (stored with the results, so fields can be
+        mapped back to the whole mesh); ``None`` when every dof is free."""
+        return None
+
     def mode_labels(self, Phi: np.ndarray) -> list[Any]:
         """Labels of the mode shapes (columns of ``Phi``), e.g. ``(k, n)`` tuples; ``None`` when unknown."""
         return [None] * Phi.shape[1]

@@ -162,11 +162,12 @@ def _cmd_curves(args: argparse.Namespace) -> int:
         modes = tuple(parse_mode(m) for m in args.modes) if args.modes else None
         kw = {"kappa_max": args.kappa_max, "n_kappa": args.n_kappa, "nu": args.nu,
               "tolerances": Tolerances(resonance=args.resonance_tol),
-              "gap_resonance": args.gap_tol, "omega_max": args.omega_max}
+              "gap_resonance": args.gap_tol, "omega_max": args.omega_max, "edge": args.edge}
         if modes:
             kw["modes"] = modes
         options = CurveOptions(**kw)
-        with progress.stage("curves", f"von Karman shell: {args.n_kappa} kappa values in [0, {args.kappa_max:g}]"):
+        with progress.stage("curves", f"von Karman shell ({args.edge} edge): {args.n_kappa} kappa values in "
+                                      f"[0, {args.kappa_max:g}]"):
             curves = compute_curves(options, progress=lambda i, n: progress.bar(i, n, "kappa"))
         quantities = ("T", "gamma") if args.quantity == "both" else (args.quantity,)
         with progress.stage("write", "HDF5, CSV and figures"):
@@ -220,7 +221,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_cv.add_argument("--kappa-max", type=float, default=100.0, help="largest kappa (grid from 0; default 100)")
     p_cv.add_argument("--n-kappa", type=int, default=200, help="number of kappa values (default 200)")
     p_cv.add_argument("--modes", nargs="+", metavar="(K,N)",
-                      help="master modes, e.g. --modes \"(2,0)\" \"(0,1)\" (default: the six of Fig. 3)")
+                      help="master modes, e.g. --modes \"(2,0)\" \"(0,1)\" (default: the six of Fig. 3; with "
+                           "--edge clamped its first six, (0,1) (1,1) (2,1) (0,2) (3,1) (1,2))")
+    p_cv.add_argument("--edge", choices=["free", "clamped"], default="free",
+                      help="edge of the shell: free (the paper) or clamped (w = dw/dr = 0, immovable in-plane; "
+                           "labels count the edge as a nodal circle). Default free")
     p_cv.add_argument("--nu", type=float, default=0.3, help="Poisson ratio (default 0.3)")
     p_cv.add_argument("--quantity", choices=["T", "gamma", "both"], default="both",
                       help="y quantity of Fig. 3: the paper's T_p, Gamma = T_p/max|phi|^2, or both figures")

@@ -7,6 +7,7 @@ whatever the model size; the full STEP over the retained modes runs only when
 """
 from __future__ import annotations
 
+import contextlib
 import time
 import warnings
 from dataclasses import asdict, replace
@@ -25,11 +26,12 @@ from .diagnostics import (captured_share, check_conditioning, conditioning_flags
 from .errors import ModelWarning, SceneError
 from .evaluators import (FullOrderContext, dnf, md_full, md_modal, nf_modal, resonance_flags, retained_set,
                          smd_full, smd_modal)
+from .gamma import NO_AMPLITUDE, gamma_scale
 from .linalg import Factorization, PseudoInverse, apply_columns, choose_backend
 from .modal import (ModalBasis, lambda_scale, modal_analysis, orient_degenerate, probe_vector,
                     rigid_body_fields)
 from .modal_model import ModalModel
-from .plan import check_elastic_modes, check_rigid_count, resolve_masters, resolve_methods
+from .plan import check_elastic_modes, check_mechanism, check_rigid_count, resolve_masters, resolve_methods
 from .progress import Progress
 from .registry import get_solver
 from .results import ModeResult, RunResult, write_hdf5
@@ -83,35 +85,20 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
 
     progress = progress or Progress(enabled=False)
     writing = write and scene.write_hdf5
+    created = writing and not scene.output_dir.exists()
     if writing:
         why = check_folder(scene.output_dir)
         if why is not None:
             raise SceneError(scene.file, "output.dir", f"the output folder {scene.output_dir} is not "
                              f"usable: {why}")
-    cls = get_solver(scene.solver)
-    checkpoint = None
     t_start = time.perf_counter()
-    if issubclass(cls, ModalModel):
-        with progress.stage("model", f"building the {scene.solver} model"):
-            model = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
-        try:
-            result = _run_modal_model(scene, model, progress)
-        finally:
-            model.close()
-    else:
-        with progress.stage("model", f"setting up the {scene.solver} model"):
-            adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
-        # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
-        # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
-        if writing and not adapter.collective:
-            checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
-        try:
-            result = _run_adapter(scene, adapter, progress, checkpoint)
-        finally:
-            adapter.close()
-        if checkpoint is not None and checkpoint.reused:
-            result.counters_note = f"{checkpoint.reused} force evaluations reused from an interrupted run"
-            progress.message(result.counters_note)
+    try:
+        result, checkpoint = _compute(scene, progress, writing)
+    except BaseException:
+        if created:  # a folder this run made and left empty (a checkpoint to resume from is kept)
+            with contextlib.suppress(OSError):
+                scene.output_dir.rmdir()
+        raise
     result.timings.update(progress.timings)
     result.timings["total"] = time.perf_counter() - t_start
     if writing:
@@ -126,6 +113,33 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
                 checkpoint.discard()
         result.hdf5_path = str(path)
     return result
+
+
+def _compute(scene: Scene, progress: Progress, writing: bool) -> tuple[RunResult, Checkpoint | None]:
+    """Build the model and run the pipeline; the force checkpoint (when writing) goes with the result."""
+    cls = get_solver(scene.solver)
+    checkpoint = None
+    if issubclass(cls, ModalModel):
+        with progress.stage("model", f"building the {scene.solver} model"):
+            model = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        try:
+            return _run_modal_model(scene, model, progress), None
+        finally:
+            model.close()
+    with progress.stage("model", f"setting up the {scene.solver} model"):
+        adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+    # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
+    # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
+    if writing and not adapter.collective:
+        checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
+    try:
+        result = _run_adapter(scene, adapter, progress, checkpoint)
+    finally:
+        adapter.close()
+    if checkpoint is not None and checkpoint.reused:
+        result.counters_note = f"{checkpoint.reused} force evaluations reused from an interrupted run"
+        progress.message(result.counters_note)
+    return result, checkpoint
 
 
 def _scene_summary(scene: Scene, methods: dict[str, str]) -> dict[str, Any]:
@@ -233,6 +247,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                                max_modes=scene.max_modes, backend=backend, eigensolver=eig, enough=enough,
                                rigid_candidates=cands, progress=progress.message)
     check_elastic_modes(scene, basis)
+    check_mechanism(scene, adapter, basis)
     orient_degenerate(basis, M, probe_vector(X, dirs, n))  # the same twins whatever the solver
     label_cache.clear()
     labels = labels_of(basis)
@@ -253,7 +268,11 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
     mask = None
     if dirs is not None:
         mask = np.asarray(dirs) < 3
-    length = adapter.characteristic_length()
+    length = scene.thickness if scene.thickness is not None else adapter.characteristic_length()
+    if length is None and policy.amplitude is None:
+        run_flags.append({"kind": "no_length", "message": "the model gives no characteristic length (no dof "
+                          "coordinates): STEP amplitudes are relative_amplitude x 1 model length unit; set "
+                          "[analysis] thickness or [analysis.step] amplitude"})
     forces = ForceEvaluator(adapter.internal_forces, n, counters,
                             batch_size=1024 if adapter.prefers_batches else 64, checkpoint=checkpoint)
     need_targeted = bool(evaluators & FULL_METHODS) or (bool(evaluators & MODAL_METHODS) and scene.tensors != "full")
@@ -313,6 +332,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         return ctx
 
     scales = adapter.shell_scales()
+    gscale, no_gamma = gamma_scale(scene, adapter, X, dirs)
     modes: list[ModeResult] = []
     where = {"stage": "evaluators"}
     with overflow_is_numerical(where, steps), progress.stage("evaluators", "normal form and modal derivatives"):
@@ -335,7 +355,7 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
             g_all = Phi.T @ st.Gv if st is not None else g_mod
             floor = coupling_floor(st, Phi, M, tol) if st is not None else None
             rho, rho_mode = slow_fast_ratio(p, omega, g_all, tol, twins, floor)
-            w_max = adapter.transverse_amplitude(phi)
+            w_max = gscale.amplitude(phi) if gscale is not None else adapter.transverse_amplitude(phi)
             rec = ModeResult(index=p, label=labels[p], omega=float(omega[p]), rho=rho, rho_mode=rho_mode,
                              omega_bar=scales.omega_bar(omega[p]) if scales else None, w_max=w_max)
             if st is not None:
@@ -384,13 +404,19 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
                     r.flags.append({"kind": "step_accuracy", "value": float(r.T_error),
                                     "message": f"T changes by {r.T_error:.2e} (relative) between the two "
                                                f"STEP amplitudes; tolerance {policy.tolerance:.1e}"})
-                if scales is not None:
-                    r.gamma = scales.gamma(r.T, w_max)
+                if gscale is not None:
+                    r.gamma = gscale.gamma(r.T, w_max)
                 rec.methods[name] = r
             modes.append(rec)
             arrays[f"Gv_{p}"] = st.Gv if st is not None else np.zeros(0)
 
+    if not any(r.gamma is not None for rec in modes for r in rec.methods.values()):
+        run_flags.append({"kind": "no_gamma", "message": no_gamma or NO_AMPLITUDE})
     arrays["phi_masters"] = Phi[:, masters]
+    free = adapter.free_dof_map()
+    if free is not None:  # fields over the whole mesh: full = zeros(n_full_dofs); full[free_dofs] = field
+        arrays["free_dofs"] = np.asarray(free.free, dtype=np.int64)
+        arrays["n_full_dofs"] = np.asarray(free.n_full, dtype=np.int64)
     if X is not None:
         arrays["dof_coordinates"] = np.asarray(X, dtype=float)
     if dirs is not None:
@@ -403,6 +429,9 @@ def _run_adapter(scene: Scene, adapter: SolverAdapter, progress: Progress,
         spectrum["omega_bar"] = [scales.omega_bar(w) for w in omega]
     counts = counters.to_dict()
     counts["force_evaluations_reused"] = checkpoint.reused if checkpoint is not None else 0
+    model = adapter.describe()
+    if gscale is not None:
+        model["gamma"] = gscale.source
     return RunResult(scene=_scene_summary(scene, methods), modes=modes, counts=counts,
-                     timings={}, spectrum=spectrum, model=adapter.describe(),
+                     timings={}, spectrum=spectrum, model=model,
                      kappa=scales.kappa if scales else None, flags=run_flags, arrays=arrays)

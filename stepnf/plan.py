@@ -80,3 +80,15 @@ def check_elastic_modes(scene: Scene, basis: ModalBasis) -> None:
                          f"|w^2| <= analysis.rigid_tolerance ({scene.rigid_tolerance:g}) x lambda_max, so the "
                          "stiffness matrix K is zero or nearly so for the solver's model ([model] of "
                          f"{scene.where()}); check K, the material's Young's modulus and the units")
+
+
+def check_mechanism(scene: Scene, adapter: Any, basis: ModalBasis) -> None:
+    """Boundary conditions that still leave rigid-body modes are refused (exit 2), naming their count,
+    unless ``analysis.rigid_modes`` accepts them: conditions meant to hold a structure leave none."""
+    from .boundary import check_mechanism as why
+
+    if scene.rigid_modes is not None or adapter.free_dof_map() is None:
+        return
+    reason = why(int(basis.rigid.shape[1]), True)
+    if reason is not None:
+        raise SceneError(scene.file, "model.boundary", reason)

@@ -21,7 +21,10 @@ retained modes), ``rigid_modes`` ("auto" | int), ``rigid_tolerance``,
 ``linear_solver`` ("auto" | "dense" | "superlu" | "mumps"), ``deflation``
 (true: shifted solves below the computed spectrum reuse the eigen-solver's
 factorisation, see :mod:`stepnf.deflation`; false: one factorisation per
-shift), ``max_modes``; and
+shift), ``max_modes``, ``thickness`` (a length h in model units) and
+``transverse`` ("ux" | "uy" | "uz" | a direction vector): with them Gamma =
+T (h / max|phi . e|)^2 is reported for any structure (:mod:`stepnf.gamma`);
+and
 the table ``[analysis.step]``: ``amplitude`` ("auto" | a length in model
 units), ``relative_amplitude`` (fraction of the characteristic length),
 ``check`` (bool), ``check_ratio``, ``tolerance``, ``method`` ("forces" |
@@ -39,6 +42,7 @@ them), so a misspelt key anywhere fails when the scene is read.
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,7 +59,7 @@ METHODS = ("nf", "dnf", "md", "smd", "md_modal", "smd_modal", "md_full", "smd_fu
 TOP_KEYS = ("model", "analysis", "output")
 ANALYSIS_KEYS = ("master_modes", "methods", "retained_modes", "qm_order", "tensors", "rigid_modes",
                  "rigid_tolerance", "degeneracy_tolerance", "resonance_tolerance", "coupling_tolerance",
-                 "linear_solver", "deflation", "max_modes", "step")
+                 "linear_solver", "deflation", "max_modes", "thickness", "transverse", "step")
 STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance", "method")
 OUTPUT_KEYS = ("dir", "name", "hdf5", "plot")
 _LABEL = re.compile(r"^\s*\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*$")
@@ -85,6 +89,8 @@ class Scene:
     linear_solver: str = "auto"
     deflation: bool = True
     max_modes: int = 400
+    thickness: float | None = None  # h of Gamma (model length units); None: the model's own, if any
+    transverse: str | tuple[float, float, float] | None = None  # "ux"/"uy"/"uz" or a unit vector
     step: StepPolicy = field(default_factory=StepPolicy)
     output_dir: Path = Path("results")
     output_name: str = "stepnf"
@@ -114,6 +120,10 @@ AMPLITUDE_RANGE = (1e-15, 1e15)
 RELATIVE_AMPLITUDE_RANGE = (1e-6, 100.0)
 #: check_ratio scales the second STEP amplitude; outside [1e-3, 1e3] the check measures round-off.
 CHECK_RATIO_RANGE = (1e-3, 1e3)
+#: analysis.thickness: a length, in the range of every geometry length (:mod:`stepnf.geometry.keys`).
+THICKNESS_RANGE = (1e-12, 1e12)
+#: analysis.transverse by name: the translations of :data:`stepnf.adapter.DIRECTIONS`.
+TRANSVERSE_NAMES = ("ux", "uy", "uz")
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -246,6 +256,27 @@ def _analysis(f, an: Mapping[str, Any], sc: Scene) -> None:
         sc.deflation = check_bool(f, "analysis.deflation", an["deflation"])
     if "max_modes" in an:
         sc.max_modes = check_number(f, "analysis.max_modes", an["max_modes"], integer=True, lo=2, hi=MAX_MODES)
+    if "thickness" in an:
+        lo, hi = THICKNESS_RANGE
+        sc.thickness = float(check_number(f, "analysis.thickness", an["thickness"], lo=lo, hi=hi,
+                                          why=" (the thickness h of Gamma, a length in model units)"))
+    if "transverse" in an:
+        sc.transverse = _transverse(f, an["transverse"])
+
+
+def _transverse(f, value: Any) -> str | tuple[float, float, float]:
+    """``analysis.transverse``: a translation name, or a nonzero direction vector (normalised)."""
+    key = "analysis.transverse"
+    if isinstance(value, str):
+        return check_choice(f, key, value, TRANSVERSE_NAMES, why=" (or a direction vector [ex, ey, ez])")
+    if not isinstance(value, list) or len(value) != 3:
+        raise SceneError(f, key, f"expected one of {allowed(TRANSVERSE_NAMES)} or a direction vector [ex, ey, ez], "
+                         f"got {describe_value(value)}")
+    e = [float(check_number(f, f"{key}[{i}]", v, lo=-1e12, hi=1e12)) for i, v in enumerate(value)]
+    norm = math.sqrt(sum(x * x for x in e))
+    if not norm > 0:
+        raise SceneError(f, key, "the direction vector must not be zero")
+    return (e[0] / norm, e[1] / norm, e[2] / norm)
 
 
 def _step(f, step: Any) -> StepPolicy:

@@ -35,13 +35,14 @@ from pathlib import Path
 from typing import Any, ClassVar, Iterator, Mapping, Sequence
 
 from .config import (check_bool, check_choice, check_number, check_path, check_table, check_text, check_unknown,
-                     interval)
-from .errors import SceneError
+                     describe_value, interval)
+from .errors import SceneError, allowed
 
 #: Kinds of :class:`Key` and the phrase that names each in messages and in ``stepnf solvers --keys``.
 KINDS = {"number": "a number", "integer": "an integer", "bool": "true or false", "choice": "one of",
-         "text": "a string", "file": "a file name", "folder": "a folder name", "path": "a path",
-         "table": "a table", "any": "any value"}
+         "list": "a list of", "text": "a string", "file": "a file name", "folder": "a folder name",
+         "path": "a path", "table": "a table", "tables": "an array of tables", "custom": "a value",
+         "any": "any value"}
 _EXISTS = {"file": "file", "folder": "folder", "path": None}
 
 
@@ -51,9 +52,12 @@ class Key:
 
     ``kind``: one of :data:`KINDS`. ``number``/``integer``: ``lo``, ``hi`` (``lo_open``,
     ``hi_open`` for open ends), ``allow_inf`` (the string ``"inf"`` gives ``math.inf``);
-    ``choice``: ``choices``; ``file``: an existing file, relative to the scene, with one of
-    ``suffixes`` if given; ``folder``: an existing folder; ``path``: a path created later;
-    ``table``: a nested :class:`Schema` in ``table``. ``default`` is shown, not applied;
+    ``choice``: ``choices``; ``list``: a non-empty list of ``choices`` without repeats;
+    ``file``: an existing file, relative to the scene, with one of ``suffixes`` if given;
+    ``folder``: an existing folder; ``path``: a path created later; ``table``: a nested
+    :class:`Schema` in ``table``; ``tables``: an array of such tables (``[[model.boundary]]``),
+    checked as ``where.name[i]``; ``custom``: ``check(file, key, value)`` returns the checked
+    value (``what`` describes it). ``default`` is shown, not applied;
     ``why`` is appended to range and choice messages (units, reasons); ``what`` names a
     ``text``, ``file``, ``folder`` or ``path`` value in messages ("a mesh file name").
     """
@@ -73,12 +77,16 @@ class Key:
     allow_inf: bool = False
     why: str = ""
     what: str = ""
+    check_value: Any = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"key {self.name!r}: unknown kind {self.kind!r}; pick one of {list(KINDS)}")
-        if (self.kind == "choice") != bool(self.choices) or (self.kind == "table") != (self.table is not None):
-            raise ValueError(f"key {self.name!r}: 'choices' go with kind 'choice', 'table' with kind 'table'")
+        if ((self.kind in ("choice", "list")) != bool(self.choices)
+                or (self.kind in ("table", "tables")) != (self.table is not None)
+                or (self.kind == "custom") != (self.check_value is not None)):
+            raise ValueError(f"key {self.name!r}: 'choices' go with kinds 'choice' and 'list', 'table' with "
+                             "'table' and 'tables', 'check_value' with 'custom'")
 
     def check(self, value: Any, *, file: str | Path | None, where: str, base_dir: str | Path) -> Any:
         """The checked ``value`` of this key in the table at dotted path ``where``."""
@@ -96,6 +104,18 @@ class Key:
             return check_bool(file, key, value)
         if kind == "choice":
             return check_choice(file, key, value, self.choices, self.why)
+        if kind == "list":
+            if not isinstance(value, list) or not value or len(set(map(repr, value))) != len(value):
+                raise SceneError(file, key, f"expected a non-empty list without repeats of {allowed(self.choices)}"
+                                 f"{self.why}, got {describe_value(value)}")
+            return [check_choice(file, f"{key}[{i}]", v, self.choices, self.why) for i, v in enumerate(value)]
+        if kind == "custom":
+            return self.check_value(file, key, value)
+        if kind == "tables":
+            assert self.table is not None
+            if not isinstance(value, list) or not value:
+                raise SceneError(file, key, f"expected an array of tables [[{key}]], got {describe_value(value)}")
+            return [self.table.check(v, file=file, where=f"{key}[{i}]", base_dir=base_dir) for i, v in enumerate(value)]
         if kind == "text":
             return check_text(file, key, value, self.what or KINDS["text"])
         if kind in _EXISTS:
@@ -113,6 +133,12 @@ class Key:
             return f"{self.kind} {rng}" + (' or "inf"' if self.allow_inf else "")
         if self.kind == "choice":
             return "one of " + ", ".join(_toml(c) for c in self.choices)
+        if self.kind == "list":
+            return "list of " + ", ".join(_toml(c) for c in self.choices)
+        if self.kind == "custom":
+            return self.what or "value"
+        if self.kind == "tables":
+            return "array of tables"
         if self.kind == "file" and self.suffixes:
             return "file (" + ", ".join(self.suffixes) + ")"
         return {"bool": "true/false", "text": "string"}.get(self.kind, self.kind)
@@ -126,6 +152,8 @@ def _toml(value: Any) -> str:
         return f'"{value}"'
     if isinstance(value, float) and math.isinf(value):
         return '"inf"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
     return repr(value)
 
 
@@ -182,7 +210,7 @@ class Schema:
             default = "(required)" if k.required else "" if k.default is None else _toml(k.default)
             out.append((f"{where}.{k.name}", k.type_text(), default, k.doc))
             if k.table is not None:
-                out.extend(k.table.rows(f"{where}.{k.name}"))
+                out.extend(k.table.rows(f"{where}.{k.name}" + ("[]" if k.kind == "tables" else "")))
         return out
 
     def format(self, where: str = "model", reserved: Sequence[str] = ("solver",)) -> str:

@@ -213,3 +213,51 @@ def test_scene_errors_name_the_key(tmp_path, cfg, key):
     with pytest.raises(SceneError) as ei:
         CodeAsterAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "s.toml")
     assert ei.value.key == key
+
+
+# ---------------------------------------------------------- boundary conditions (issue 11)
+def test_clamped_edge_round_trip_restricts_to_the_free_dofs(tmp_path, fake_run_aster):
+    """[[model.boundary]] set = "edge" on a generated cap: the fake solver's K (whole mesh) and forces
+    come back restricted to the free dofs, exactly (the same K with the fixed rows/columns removed)."""
+    ad = make(tmp_path, command=f"{fake_run_aster} ${{export}}", keep="never",
+              boundary=[{"set": "edge"}])
+    fd = ad.free_dof_map()
+    n_full = 3 * len(ad.points)
+    edge = ad.node_sets["edge"]
+    assert fd.n_full == n_full and sorted(fd.fixed.tolist()) == sorted((3 * edge[:, None] + np.arange(3)).ravel())
+    assert ad.n_dofs == n_full - 3 * len(edge) and len(ad.dof_coordinates()) == ad.n_dofs
+    K_full = sp.diags([-np.ones(n_full - 1), 2 * np.ones(n_full), -np.ones(n_full - 1)], [-1, 0, 1]).toarray()
+    K_free = K_full[np.ix_(fd.free, fd.free)]
+    np.testing.assert_array_equal(ad.stiffness_matrix().toarray(), K_free)
+    U = np.random.default_rng(2).standard_normal((3, ad.n_dofs)) * 1e-3
+    # the solver sees the expanded field (zeros on the edge), the adapter returns the free rows
+    expected = (fd.expand(U) @ K_full + fd.expand(U) ** 3)[:, fd.free]
+    np.testing.assert_allclose(ad.internal_forces(U), expected, rtol=0, atol=1e-15)
+    assert ad.describe()["boundary"]["n_fixed"] == 3 * len(edge)
+
+
+def test_med_groups_are_node_sets():
+    """MED groups of the real code_aster fixtures: node groups and cell groups (their nodes)."""
+    fixtures = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "code_aster"
+    path = fixtures / "zzzz395f_modal_basis.rmed"
+    if not path.is_file():
+        pytest.skip("code_aster fixtures not present")
+    groups = ca.med.read_groups(path)
+    X = ca.med.read_mesh_nodes(path)
+    assert len(groups["Group_Of_All_Nodes"]) == len(X) == 64
+    # the faces z = 0 (S_inf) and z = 3 (S_f) of the 3 x 3 x 3 block: 16 nodes each
+    assert len(groups["S_inf"]) == 16 and np.all(X[groups["S_inf"], 2] == 0.0)
+    assert len(groups["S_f"]) == 16 and np.all(X[groups["S_f"], 2] == 3.0)
+
+
+def test_unknown_med_group_lists_the_groups(tmp_path):
+    fixtures = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "code_aster"
+    src = fixtures / "static_solid_cantilever_code_aster.rmed"
+    if not src.is_file():
+        pytest.skip("code_aster fixtures not present")
+    mesh = tmp_path / "beam.med"
+    mesh.write_bytes(src.read_bytes())
+    with pytest.raises(SceneError) as info:
+        CodeAsterAdapter.from_config({"mesh": "beam.med", "material": MATERIAL, "boundary": [{"set": "LEFT"}]},
+                                     base_dir=tmp_path, scene_file=tmp_path / "s.toml")
+    assert info.value.key == "model.boundary[0].set" and "['bc_nodes', 'elMyBeam_so']" in str(info.value)

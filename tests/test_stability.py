@@ -79,8 +79,11 @@ def test_step_amplitude_plateau_and_roundoff():
     assert eg[0] > 1e-2 and eg[-1] < 1e-8
     # ... and the T estimate follows the actual error where round-off dominates but T still
     # has digits: estimate / actual = 2^2 - 1 = 3 for an error ~ 1/q^2 and check_ratio 0.5
-    # (measured 3.0-4.1); [1, 10] allows for the noise of round-off
-    for r in (1e-4, 1e-3, 1e-2):
+    # (measured 3.0-4.1); [1, 10] allows for the noise of round-off. Not at 1e-4 h: there T keeps
+    # one or two digits and the error is noise whose size, not its ratio to the estimate, depends on
+    # the compiled kernel (measured ratios 3.4 and 0.52 with two builds of the same forms); the
+    # flag below is what the user gets there.
+    for r in (1e-3, 1e-2):
         actual = abs(T[r] / plateau - 1)
         est = res[r].methods["dnf"].T_error
         assert 1.0 < est / actual < 10.0, (r, est, actual)

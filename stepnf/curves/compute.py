@@ -37,13 +37,14 @@ def compute_curves(options: CurveOptions = CurveOptions(),
     tol = options.tolerances
     describe: dict[str, Any] = {}
     for j, kappa in enumerate(kap):
-        model = VonKarmanShell(kappa=float(kappa), nu=options.nu, **options.model)
+        model = VonKarmanShell(kappa=float(kappa), nu=options.nu, edge=options.edge, **options.model)
         om, labels, comps = model.omegas(), model.labels(), model.companions()
         S = np.arange(len(om))
         if j == 0:
             describe = model.describe()
             _check_modes(model, modes)
-            freq_labels = _first_labels(om, labels, options.omega_max, model.k_max)
+            freq_labels = _first_labels(om, labels, options.omega_max, model.k_max,
+                                        1 if options.edge == "clamped" else 0)
             freqs = np.full((len(freq_labels), nk), np.nan)
         first = {}
         for i, lab in enumerate(labels):
@@ -118,11 +119,13 @@ def _classify(name: str, res: Any, p: int, om: np.ndarray, g: np.ndarray, t_cubi
     return bits, "; ".join(texts)
 
 
-def _first_labels(om: np.ndarray, labels: Sequence[Any], omega_max: float, k_max: int) -> list[tuple[int, int]]:
-    """Distinct (k, n) labels with frequency below omega_max, by increasing frequency."""
-    top = min((w for w, lab in zip(om, labels) if tuple(lab) == (k_max, 0)), default=math.inf)
+def _first_labels(om: np.ndarray, labels: Sequence[Any], omega_max: float, k_max: int,
+                  n_first: int = 0) -> list[tuple[int, int]]:
+    """Distinct (k, n) labels with frequency below omega_max, by increasing frequency (``n_first``: n of
+    the lowest mode with k_max nodal diameters, 1 for the clamped edge, which counts as a circle)."""
+    top = min((w for w, lab in zip(om, labels) if tuple(lab) == (k_max, n_first)), default=math.inf)
     if omega_max > top:
-        raise CurvesError(f"omega_max = {omega_max:g} is above the frequency {top:.4g} of mode ({k_max}, 0): "
+        raise CurvesError(f"omega_max = {omega_max:g} is above the frequency {top:.4g} of mode ({k_max}, {n_first}): "
                           f"modes with k > k_max = {k_max} could lie below it; lower omega_max or raise k_max")
     out: list[tuple[int, int]] = []
     for w, lab in zip(om, labels):

@@ -15,6 +15,10 @@ from ..evaluators import Tolerances
 
 #: The six master modes of the paper's Fig. 3.
 DEFAULT_MODES: tuple[tuple[int, int], ...] = ((2, 0), (3, 0), (4, 0), (0, 1), (0, 2), (2, 1))
+#: With ``edge = "clamped"``: its first six modes (labels counting the clamped edge as a nodal circle).
+CLAMPED_MODES: tuple[tuple[int, int], ...] = ((0, 1), (1, 1), (2, 1), (0, 2), (3, 1), (1, 2))
+#: The edges of :class:`stepnf.models.VonKarmanShell` (its ``edge``; not imported: the model loads lazily).
+EDGES: tuple[str, ...] = ("free", "clamped")
 METHODS: tuple[str, ...] = ("nf", "md", "smd")
 QUANTITIES: tuple[str, ...] = ("T", "gamma")
 
@@ -43,7 +47,8 @@ class CurveOptions:
     ``(k, n)`` labels (cos companion); ``omega_max`` selects the Fig. 2 modes: every
     ``(k, n)`` whose frequency at the first kappa is below it (nondimensional);
     ``model`` holds extra keyword arguments of :class:`VonKarmanShell` (``k_max``,
-    ``n_transverse``, ``n_galerkin``, ``n_airy``).
+    ``n_transverse``, ``n_galerkin``, ``n_airy``); ``edge`` is the shell's edge, ``"free"`` (the
+    paper) or ``"clamped"`` (immovable), whose default ``modes`` are :data:`CLAMPED_MODES`.
     """
 
     kappa_max: float = 100.0
@@ -58,6 +63,7 @@ class CurveOptions:
     omega_max: float = 80.0
     degeneracy: float = 1e-3
     model: dict[str, int] = field(default_factory=dict)
+    edge: str = "free"
 
     #: 200 kappa values take ~15 s; 10 000 take about 12 minutes, beyond any figure's resolution
     MAX_KAPPAS = 10_000
@@ -71,6 +77,10 @@ class CurveOptions:
             raise CurvesError(f"omega_max: expected a finite number > 0, got {self.omega_max!r}")
         if self.kappas is None and not (isinstance(self.n_kappa, int) and self.n_kappa <= self.MAX_KAPPAS):
             raise CurvesError(f"n_kappa: expected an integer in [2, {self.MAX_KAPPAS}], got {self.n_kappa!r}")
+        if self.edge not in EDGES:
+            raise CurvesError(f"edge: expected one of {allowed(EDGES)}, got {self.edge!r}")
+        if self.edge == "clamped" and self.modes == DEFAULT_MODES:  # the free edge's labels: not modes of it
+            object.__setattr__(self, "modes", CLAMPED_MODES)
 
     def grid(self) -> np.ndarray:
         if self.kappas is not None:

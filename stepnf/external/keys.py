@@ -1,17 +1,25 @@
-"""The ``[model]`` keys every template-driven adapter shares, and its one "mesh or generated cap" build.
+"""The ``[model]`` keys every template-driven adapter shares, and its one "mesh, deck or generated cap" build.
 
 Run settings (:data:`RUN_KEYS`, :data:`EXECUTABLE`): how the solver is run.
 Solid model (:func:`solid_model_keys`, :func:`check_solid_config`,
-:func:`build_solid`, and :class:`SolidFromScene` that ties them to an adapter class): either a user's mesh file (``mesh``) or a generated
-free-edge cap (``[model.geometry]``), with ``[model.material]``
+:func:`build_solid`, and :class:`SolidFromScene` that ties them to an adapter
+class): either a user's mesh file (``mesh``), a solver deck (``deck``, for an
+adapter whose schema declares it: the deck carries its own material), or a
+generated free-edge cap (``[model.geometry]``), with ``[model.material]``
 (:mod:`stepnf.geometry.keys`), for any adapter with the
-:class:`~stepnf.geometry.solid.CapSolid` builders.
+:class:`~stepnf.geometry.solid.CapSolid` builders; and the boundary conditions
+of ``[[model.boundary]]`` (:mod:`stepnf.boundary`, for an adapter whose schema
+declares :data:`~stepnf.boundary.BOUNDARY_KEY`), applied by
+:meth:`SolidFromScene.apply_boundary` once the model is built.
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any, Callable, ClassVar, Mapping, Sequence
 
+import numpy as np
+
+from ..boundary import DOF_NAMES, FreeDofs, boundary_conditions, select_nodes
 from ..errors import SceneError
 from ..geometry import keys as cap_keys
 from ..geometry.checks import units_warning
@@ -62,37 +70,56 @@ def solid_model_keys(elements: Sequence[str], mesh_suffixes: Sequence[str], mesh
 
 def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: str | Path,
                        scene_file: str | Path | None, mesh_needs_material: bool) -> dict[str, Any]:
-    """``config`` checked against ``schema``, with exactly one of ``mesh`` and ``[model.geometry]``.
+    """``config`` checked against ``schema``, with exactly one of ``mesh``, ``deck`` (when the schema
+    declares it) and ``[model.geometry]``.
 
     Returns the checked keys with ``material`` a complete ``{E, nu, rho}`` (for a generated cap,
-    and for a mesh when ``mesh_needs_material``; else what was given) and ``geometry`` replaced by
-    :func:`stepnf.geometry.keys.cap_geometry`'s ``{shape, a, R, h, resolution}``.
+    and for a mesh when ``mesh_needs_material``; else what was given; ``{}`` with a deck, which
+    carries its own and refuses ``[model.material]``) and ``geometry`` replaced by
+    :func:`stepnf.geometry.keys.cap_geometry`'s ``{shape, a, R, h, resolution}``. The
+    ``[[model.boundary]]`` tables are checked (one of ``set`` and ``box`` each) and kept as given.
     """
     c = schema.check(config, file=scene_file, where="model", base_dir=base_dir, reserved=("solver",))
-    if ("mesh" in c) == ("geometry" in c):
-        raise SceneError(scene_file, "model", 'give exactly one of mesh = "<file>" or a [model.geometry] table')
-    c["material"] = cap_keys.material(c, scene_file, required="geometry" in c or mesh_needs_material)
+    sources = [k for k in ("mesh", "deck", "geometry") if k in c]
+    if len(sources) != 1:
+        deck = ', deck = "<file>"' if "deck" in schema else ""
+        raise SceneError(scene_file, "model", f'give exactly one of mesh = "<file>"{deck} or a [model.geometry] '
+                         "table" + (f" (got {' and '.join(sources)})" if sources else ""))
+    if "deck" in c:
+        if "material" in c:
+            raise SceneError(scene_file, "model.material", f"the deck {c['deck']} carries its own *MATERIAL "
+                             "blocks: remove [model.material] (or give the mesh with mesh = instead of deck =)")
+        c["material"] = {}
+    else:
+        c["material"] = cap_keys.material(c, scene_file, required="geometry" in c or mesh_needs_material)
     if "geometry" in c:
         c["geometry"] = cap_keys.cap_geometry(c, scene_file)
+    boundary_conditions(c.get("boundary"), scene_file)
     return c
 
 
 def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[..., Any],
                 scene_file: str | Path | None) -> Any:
     """The adapter ``cls`` for :func:`check_solid_config`'s keys: ``read_mesh(path, material=..., **run)``
-    for a user's mesh, ``cls.from_cap`` for a generated cap; every other key is passed on as a run
-    setting. Warns when the material's units and the mesh's sizes disagree; a mesh the adapter
-    refuses (a ValueError) is a SceneError on ``[model]``."""
-    run = {k: v for k, v in checked.items() if k not in ("element", "mesh", "geometry", "material")}
+    for a user's mesh, ``cls.from_deck_file(path, **run)`` for a deck, ``cls.from_cap`` for a
+    generated cap; every other key is passed on as a run setting. Then the ``[[model.boundary]]``
+    conditions (:meth:`SolidFromScene.apply_boundary`). Warns when the material's units and the
+    mesh's sizes disagree; a model the adapter refuses (a ValueError) is a SceneError on ``[model]``."""
+    run = {k: v for k, v in checked.items() if k not in ("element", "mesh", "deck", "geometry", "material", "boundary")}
     material = checked["material"]
+    conditions = boundary_conditions(checked.get("boundary"), scene_file)
     try:
         if "mesh" in checked:
             adapter = read_mesh(checked["mesh"], material=material, **run)
             units_warning(adapter.points, material, source=checked["mesh"])
-            return adapter
-        g = checked["geometry"]
-        adapter = cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
-        units_warning(adapter.points, material, source=scene_file, thickness=g["h"])
+        elif "deck" in checked:
+            adapter = cls.from_deck_file(checked["deck"], **run)
+        else:
+            g = checked["geometry"]
+            adapter = cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
+            units_warning(adapter.points, material, source=scene_file, thickness=g["h"])
+        if conditions:
+            adapter.apply_boundary(conditions, scene_file=scene_file, mesh=checked.get("mesh") or checked.get("deck"))
         return adapter
     except SceneError:
         raise
@@ -103,11 +130,15 @@ def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[...
 class SolidFromScene:
     """``validate_config`` and ``from_config`` of a template-driven solid adapter (a mixin placed before
     the adapter's other bases): the keys of :attr:`model_keys` (built with :func:`solid_model_keys`),
-    a user's mesh read by :meth:`from_mesh_file` or a cap generated by ``from_cap``."""
+    a user's mesh read by :meth:`from_mesh_file`, a deck read by :meth:`from_deck_file` (when the keys
+    declare ``deck``) or a cap generated by ``from_cap``; then the ``[[model.boundary]]`` conditions
+    (when the keys declare :data:`~stepnf.boundary.BOUNDARY_KEY`) by :meth:`apply_boundary`."""
 
     model_keys: ClassVar[Schema]
     #: The material is needed with a user's mesh too (False: a job template may carry its own).
     mesh_needs_material: ClassVar[bool] = True
+    #: The ``[[model.boundary]]`` conditions applied (:meth:`apply_boundary`), as ``describe`` reports them.
+    applied_conditions: tuple[dict[str, Any], ...] = ()
 
     @classmethod
     def from_mesh_file(cls, path: Path, **kw: Any) -> Any:
@@ -115,9 +146,40 @@ class SolidFromScene:
         raise NotImplementedError
 
     @classmethod
+    def from_deck_file(cls, path: Path, **kw: Any) -> Any:
+        """The adapter for a user's solver deck (the ``deck`` key, when the schema declares it)."""
+        raise NotImplementedError
+
+    def apply_boundary(self, conditions: Sequence[Any], *, scene_file: str | Path | None = None,
+                       mesh: str | Path | None = None) -> None:
+        """Fix the dofs that ``conditions`` (:class:`~stepnf.boundary.BoundaryCondition`) select among
+        ``self.points`` and ``self.node_sets``, besides those already fixed: ``self.free_dofs`` becomes
+        the :class:`~stepnf.boundary.FreeDofs` of the ``3 N`` nodal dofs (what
+        :class:`~stepnf.geometry.solid.CapSolid` exposes), and ``self.applied_conditions`` lists the
+        conditions (for ``describe``). Call it before K, M or any force is computed: the adapter restricts
+        them to the free dofs."""
+        if getattr(self, "_K", None) is not None:
+            raise RuntimeError("apply_boundary after K was built: the matrices kept cover the old dofs")
+        points = np.asarray(self.points)  # type: ignore[attr-defined]
+        sets = getattr(self, "node_sets", None) or {}
+        old = getattr(self, "free_dofs", None)
+        fixed = [np.zeros(0, dtype=np.int64) if old is None else old.fixed]
+        listed = list(self.applied_conditions)
+        for c in conditions:
+            nodes = select_nodes(c, points, sets, scene_file, mesh)
+            fixed.append((3 * nodes[:, None] + np.asarray(c.dofs)[None, :]).ravel())
+            where = {"set": c.set} if c.set is not None else {"box": [list(x) for x in c.box]}
+            listed.append({"condition": c.where, **where, "dofs": [DOF_NAMES[d] for d in c.dofs],
+                           "nodes": int(nodes.size)})
+        all_fixed = np.unique(np.concatenate(fixed))
+        self.free_dofs = FreeDofs(3 * len(points), all_fixed) if all_fixed.size else None
+        self.applied_conditions = tuple(listed)
+
+    @classmethod
     def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
                         scene_file: str | Path | None = None) -> dict[str, Any]:
-        """The ``[model]`` keys: a mesh or a generated cap, the material, the run settings (:func:`check_solid_config`)."""
+        """The ``[model]`` keys: a mesh, a deck or a generated cap, the material, the boundary conditions, the run
+        settings (:func:`check_solid_config`)."""
         return check_solid_config(cls.model_keys, config, base_dir=base_dir, scene_file=scene_file,
                                   mesh_needs_material=cls.mesh_needs_material)
 

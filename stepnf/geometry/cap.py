@@ -53,7 +53,9 @@ class VolumeMesh:
     ``cell_type`` a meshio name (``"hexahedron27"``, ``"hexahedron20"``,
     ``"tetra10"``...); ``midsurface`` (N,) bool, True for nodes on the
     mid-surface (``zeta = 0``) when known; ``info`` free-form facts (a, R, h,
-    resolution) for reports.
+    resolution) for reports; ``node_sets`` named node sets ``{name: node indices}``
+    (a generated cap has ``"edge"``, every node of its lateral face, for boundary
+    conditions: :mod:`stepnf.boundary`).
     """
 
     points: np.ndarray
@@ -61,6 +63,7 @@ class VolumeMesh:
     cell_type: str
     midsurface: np.ndarray | None = None
     info: dict[str, Any] = field(default_factory=dict)
+    node_sets: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_points(self) -> int:
@@ -143,6 +146,29 @@ def _map_to_shell(xy: np.ndarray, zeta: np.ndarray, R: float) -> np.ndarray:
     return mid + zeta[:, None] * normal
 
 
+def extruded_hex27(Q: np.ndarray, n_layers: int) -> np.ndarray:
+    """Hex27 cells (VTK order) of quad9 cells ``Q`` (counter-clockwise) extruded through ``n_layers``
+    layers: node ``q (2 n_layers + 1) + level`` is plan node ``q`` at level ``level`` (0 at the
+    bottom), the numbering of :func:`spherical_cap` (and of any extruded block)."""
+    n_lev = 2 * n_layers + 1
+
+    def node(q: np.ndarray, lev: int) -> np.ndarray:
+        return q * n_lev + lev
+
+    cells = []
+    for layer in range(n_layers):
+        b, m, t = 2 * layer, 2 * layer + 1, 2 * layer + 2
+        cols = (
+            [node(Q[:, i], b) for i in range(4)] + [node(Q[:, i], t) for i in range(4)]
+            + [node(Q[:, i], b) for i in range(4, 8)] + [node(Q[:, i], t) for i in range(4, 8)]
+            + [node(Q[:, i], m) for i in range(4)]
+            + [node(Q[:, 7], m), node(Q[:, 5], m), node(Q[:, 4], m), node(Q[:, 6], m),
+               node(Q[:, 8], b), node(Q[:, 8], t), node(Q[:, 8], m)]
+        )
+        cells.append(np.stack(cols, axis=1))
+    return np.concatenate(cells)
+
+
 def spherical_cap(
     a: float,
     R: float,
@@ -184,31 +210,20 @@ def spherical_cap(
     xy = np.repeat(P2 * a, n_lev, axis=0)
     points = _map_to_shell(xy, np.tile(zeta, len(P2)), float(R))
 
-    def node(q: np.ndarray, lev: int) -> np.ndarray:
-        return q * n_lev + lev
-
-    cells = []
-    for layer in range(int(n_thick)):
-        b, m, t = 2 * layer, 2 * layer + 1, 2 * layer + 2
-        cols = (
-            [node(Q[:, i], b) for i in range(4)] + [node(Q[:, i], t) for i in range(4)]
-            + [node(Q[:, i], b) for i in range(4, 8)] + [node(Q[:, i], t) for i in range(4, 8)]
-            + [node(Q[:, i], m) for i in range(4)]
-            + [node(Q[:, 7], m), node(Q[:, 5], m), node(Q[:, 4], m), node(Q[:, 6], m),
-               node(Q[:, 8], b), node(Q[:, 8], t), node(Q[:, 8], m)]
-        )
-        cells.append(np.stack(cols, axis=1))
-    cells = np.concatenate(cells)
+    cells = extruded_hex27(Q, int(n_thick))
     midsurface = np.tile(np.arange(n_lev) == int(n_thick), len(P2))
+    # the lateral face: every level of the plan points on the unit circle (exactly 1 up to round-off)
+    rim = np.repeat(np.abs(np.hypot(P2[:, 0], P2[:, 1]) - 1.0) < 1e-9, n_lev)
     if element == "hex20":
         cells = cells[:, :20]
         used = np.unique(cells)
         renum = np.full(len(points), -1)
         renum[used] = np.arange(len(used))
-        points, midsurface, cells = points[used], midsurface[used], renum[cells]
+        points, midsurface, rim, cells = points[used], midsurface[used], rim[used], renum[cells]
     info = {"shape": "spherical_cap", "a": float(a), "R": float(R), "h": float(h), "element": element,
             "n_core": int(n_core), "n_ring": int(n_ring), "n_thick": int(n_thick), "core": float(core)}
-    return VolumeMesh(points=points, cells=cells, cell_type=CELL_TYPES[element], midsurface=midsurface, info=info)
+    return VolumeMesh(points=points, cells=cells, cell_type=CELL_TYPES[element], midsurface=midsurface, info=info,
+                      node_sets={"edge": np.flatnonzero(rim)})
 
 
 def shell_volume(a: float, R: float, h: float) -> float:

@@ -77,7 +77,8 @@ CAP_GEOMETRY = Schema(Key("shape", "choice", "the generated shape", default="sph
 #: The ``material`` and ``geometry`` tables of a cap adapter's ``[model]``.
 CAP_TABLES = Schema(
     Key("material", "table", "the material (every element)", table=MATERIAL),
-    Key("geometry", "table", "a generated free-edge cap (or, beside a mesh, its a, R, h)", table=CAP_GEOMETRY),
+    Key("geometry", "table", "a generated cap, free-edged unless [[model.boundary]] holds its \"edge\" set (or, "
+        "beside a mesh, its a, R, h)", table=CAP_GEOMETRY),
 )
 
 

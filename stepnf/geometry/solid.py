@@ -9,13 +9,21 @@ mode and its (k, n) label. The adapter sets ``points`` (N, 3), ``geometry``
 (E, nu, rho), ``midsurface`` ((N,) bool or None) and ``hex20_cells`` ((E, 20)
 VTK-ordered cells or None: then the mid-surface is sampled at the 3 x 3 points
 of each element, like a 27-node mesh, instead of at its nodes).
+
+Boundary conditions (:mod:`stepnf.boundary`): an adapter that fixes dofs sets
+``free_dofs`` (a :class:`~stepnf.boundary.FreeDofs` over the ``3 N`` nodal
+dofs); the dofs this mixin exposes are then the free ones, and mode shapes are
+expanded to every node (zeros on the fixed dofs) before they are measured or
+labelled.
 """
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
+from ..boundary import FreeDofs
 from .cap import outward_normals
 from .labels import ModeLabeler
 from .midsurface import midsurface_sampler
@@ -29,6 +37,8 @@ class CapSolid:
     material: dict
     midsurface: np.ndarray | None = None
     hex20_cells: np.ndarray | None = None
+    #: The free dofs when boundary conditions fix some (``None``: every nodal dof is free).
+    free_dofs: FreeDofs | None = None
     _sampler: tuple | None = None
     _labeler: ModeLabeler | None = None
 
@@ -46,15 +56,32 @@ class CapSolid:
     def _is_cap(self) -> bool:
         return self.geometry.get("shape") == "spherical_cap"
 
+    def free_dof_map(self) -> FreeDofs | None:
+        """The free dofs among the ``3 N`` nodal dofs, ``None`` when nothing is fixed."""
+        return self.free_dofs
+
+    def free_part(self, A: Any) -> Any:
+        """Fields (..., 3 N) or a sparse matrix (3 N, 3 N) over every nodal dof, restricted to the free dofs."""
+        if self.free_dofs is None:
+            return A
+        return self.free_dofs.restrict_matrix(A) if sp.issparse(A) else self.free_dofs.restrict(A)
+
+    def nodal(self, phi: np.ndarray) -> np.ndarray:
+        """A field over the exposed dofs as nodal displacements (N, 3), zeros on the fixed dofs."""
+        phi = np.asarray(phi, dtype=float)
+        return (phi if self.free_dofs is None else self.free_dofs.expand(phi)).reshape(-1, 3)
+
     @property
     def n_dofs(self) -> int:
-        return 3 * len(self.points)
+        return 3 * len(self.points) if self.free_dofs is None else self.free_dofs.n_free
 
     def dof_coordinates(self) -> np.ndarray:
-        return np.repeat(self.points, 3, axis=0)
+        X = np.repeat(self.points, 3, axis=0)
+        return X if self.free_dofs is None else X[self.free_dofs.free]
 
     def dof_directions(self) -> np.ndarray:
-        return np.tile(np.arange(3), len(self.points))
+        D = np.tile(np.arange(3), len(self.points))
+        return D if self.free_dofs is None else D[self.free_dofs.free]
 
     def characteristic_length(self) -> float | None:
         if "h" in self.geometry:
@@ -74,7 +101,7 @@ class CapSolid:
         if not self._is_cap() or self.midsurface is None:
             return None
         R = float(self.geometry["R"])
-        U = np.asarray(phi, dtype=float).reshape(-1, 3)
+        U = self.nodal(phi)
         if self.hex20_cells is not None:
             if self._sampler is None:
                 W, X = midsurface_sampler(self.points, self.hex20_cells, self.midsurface)
@@ -95,4 +122,4 @@ class CapSolid:
             self._labeler = ModeLabeler(self.points[mid, :2], mid,
                                         outward_normals(self.points, float(self.geometry["R"])),
                                         float(self.geometry["a"]))
-        return [self._labeler.label(Phi[:, j].reshape(-1, 3)) for j in range(Phi.shape[1])]
+        return [self._labeler.label(self.nodal(Phi[:, j])) for j in range(Phi.shape[1])]

@@ -34,4 +34,7 @@ def hex27_to_tetra(mesh: VolumeMesh) -> VolumeMesh:
     renum[used] = np.arange(len(used))
     mid = None if mesh.midsurface is None else mesh.midsurface[used]
     info = dict(mesh.info, element="tet10")
-    return VolumeMesh(points=P[used], cells=renum[tets], cell_type="tetra", midsurface=mid, info=info)
+    # named node sets keep the nodes the tetrahedra still use (the hexahedra's mid-edge nodes are dropped)
+    sets = {k: np.unique(renum[v][renum[v] >= 0]) for k, v in mesh.node_sets.items()}
+    return VolumeMesh(points=P[used], cells=renum[tets], cell_type="tetra", midsurface=mid, info=info,
+                      node_sets=sets)

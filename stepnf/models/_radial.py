@@ -135,9 +135,11 @@ def _normalise(k: int, lam: np.ndarray, c: np.ndarray) -> np.ndarray:
     return 1.0 / np.sqrt(angular_weight(k) * (jj + 2.0 * c * ji + c * c * ii))
 
 
-def free_plate_family(k: int, n: int, nu: float) -> RadialFamily:
-    """The first ``n`` elastic free-edge plate modes with ``k`` nodal diameters (rigid modes excluded)."""
-    lam = _roots(lambda x: _free_det(x, k, nu), n, start=1.0)
+def free_plate_family(k: int, n: int, nu: float, start: float = 1.0) -> RadialFamily:
+    """The first ``n`` elastic free-edge plate modes with ``k`` nodal diameters (rigid modes excluded),
+    ``lam`` above ``start`` (1 is below every root for nu <= 0.95, so for every plate; the lowest root
+    of k >= 2 falls like (1 - nu)^(1/4) as nu -> 1, which the clamped edge's Airy functions reach)."""
+    lam = _roots(lambda x: _free_det(x, k, nu), n, start=start)
     mJ, mI, vJ, vI = _free_edge(k, lam, nu)
     # the row with the larger coefficient of I_k is the better conditioned one
     c = np.where(np.abs(mI) >= np.abs(vI), -mJ / mI, -vJ / vI)

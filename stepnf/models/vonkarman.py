@@ -1,4 +1,4 @@
-"""Semi-analytical von Karman model of a free-edge shallow spherical shell (paper section 2.1).
+"""Semi-analytical von Karman model of a shallow spherical shell, free or clamped edge (paper section 2.1).
 
 Nondimensional equations (2a)-(2b) of the paper on the unit disk
 (``r = a r_bar``, ``t = a^2 sqrt(rho h / D) t_bar``, ``w = h w_bar``, ``F = E h^3 F_bar``):
@@ -7,8 +7,11 @@ Nondimensional equations (2a)-(2b) of the paper on the unit disk
     Delta Delta F - sqrt(kappa) Delta w = -1/2 L(w, w)
 
 with ``eps_q = 12 (1 - nu^2) sqrt(kappa)``, ``eps_c = 12 (1 - nu^2)``,
-``kappa = a^4 / (R^2 h^2)``; free edge: ``w`` satisfies the free-plate bending
-conditions, ``F = F_r = 0`` (``N_rr = N_rtheta = 0``).
+``kappa = a^4 / (R^2 h^2)``; free edge (the default, the paper): ``w`` satisfies the free-plate
+bending conditions, ``F = F_r = 0`` (``N_rr = N_rtheta = 0``). ``edge = "clamped"``: ``w = w_r = 0`` and
+immovable in-plane displacements; the conditions this puts on F, their derivation and the bases
+that replace the two below are in :mod:`stepnf.models._edges` (transverse: clamped-plate modes;
+Airy: free-plate modes of Poisson ratio ``-nu``); every formula below holds unchanged.
 
 Discretisation (Galerkin, exact in the limit):
 
@@ -41,9 +44,10 @@ only for ``2 k_p <= k_max`` (see :meth:`VonKarmanShell.couplings_complete`).
 Conventions: angular frequencies are nondimensional (``omega_bar``); the cos
 companion of a mode is ``R(r) cos k theta``, the sin companion ``R(r) sin k theta``
 (k = 0 modes are reported as "cos"); the radial part is signed so that
-``R(1) > 0``. Labels ``(k, n)``: k nodal diameters, n nodal circles (n counted
-from 0 for k >= 2 and from 1 for k = 0, 1, whose n = 0 modes are the rigid motions
-left out of the model), ordered by frequency within each k.
+``R(1) > 0`` (clamped: ``R''(1) > 0``). Labels ``(k, n)``: k nodal diameters, n nodal circles (free
+edge: n counted from 0 for k >= 2 and from 1 for k = 0, 1, whose n = 0 modes are the rigid motions
+left out of the model; clamped edge: the edge counts as a circle, n from 1 for every k), ordered by
+frequency within each k.
 """
 from __future__ import annotations
 
@@ -57,19 +61,23 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import SceneError
-from ..config import check_number
+from ..config import check_choice, check_number
 from ..schema import Key, Schema
 from ..modal_model import ModalModel
 from ..shell import ShellScales
 from ._couplings import laplacian, trilinear
+from ._edges import EDGES, NU_MIN_CLAMPED, airy_family, first_circle, plate_family, sign_derivative
 from ._quadrature import angular_factors, panel_rule, radial_panels
-from ._radial import RadialFamily, angular_weight, clamped_plate_family, free_plate_family
+from ._radial import RadialFamily, angular_weight
 
 #: Defaults. k_max = 8 makes the couplings of every mode with k <= 4 complete (the paper's six
 #: modes); with the other numbers T_NF of those six modes is within 3e-7 of a model with
 #: (k_max, n_transverse, n_galerkin, n_airy) = (10, 20, 40, 50) at kappa = 0, 10, 25
-#: (bench/vonkarman_convergence.py); n_galerkin defaults to max(20, n_transverse + 12).
-DEFAULTS: dict[str, Any] = {"nu": 0.3, "k_max": 8, "n_transverse": 8, "n_galerkin": 20, "n_airy": 24}
+#: (bench/vonkarman_convergence.py); n_galerkin defaults to max(20, n_transverse + 12). Clamped edge
+#: (``--edge clamped``): T_NF of its first six modes within 5e-11 at kappa = 0 and 5e-6 at kappa = 10,
+#: set by n_transverse (the NF sum over the axisymmetric modes kept: 4e-7 with n_transverse = 14).
+DEFAULTS: dict[str, Any] = {"nu": 0.3, "k_max": 8, "n_transverse": 8, "n_galerkin": 20, "n_airy": 24,
+                            "edge": "free"}
 
 #: Allowed range of each parameter (``nu``: the open interval). kappa = a^4/(R^2 h^2) = (2 H/h)^2
 #: with H ~ a^2/(2R) the rise of the cap: 1e6 is a cap rising 500 thicknesses, far beyond shallow-shell
@@ -101,7 +109,7 @@ class _ShellFamily:
 
 
 class VonKarmanShell(ModalModel):
-    """Free-edge shallow spherical shell, von Karman model, in modal coordinates.
+    """Shallow spherical shell with a free or clamped edge, von Karman model, in modal coordinates.
 
     Parameters
     ----------
@@ -109,8 +117,9 @@ class VonKarmanShell(ModalModel):
     nu : Poisson ratio (-1 < nu < 0.5)
     k_max : largest nodal-diameter number of the transverse modes kept
     n_transverse : shell modes kept per nodal-diameter number and companion
-    n_galerkin : free-plate modes per k in the Ritz basis of the shell modes (>= n_transverse)
+    n_galerkin : plate modes (of the same edge) per k in the Ritz basis of the shell modes (>= n_transverse)
     n_airy : Airy functions per k (for every k up to ``2 k_max``)
+    edge : ``"free"`` (the paper) or ``"clamped"`` (``w = w_r = 0``, immovable in-plane edge)
 
     Each parameter must lie in its range of :data:`RANGES` (a :class:`SceneError` otherwise).
 
@@ -130,18 +139,21 @@ class VonKarmanShell(ModalModel):
             lo=RANGES["k_max"][0], hi=RANGES["k_max"][1]),
         Key("n_transverse", "integer", "shell modes kept per nodal-diameter number and companion",
             default=DEFAULTS["n_transverse"], lo=RANGES["n_transverse"][0], hi=RANGES["n_transverse"][1]),
-        Key("n_galerkin", "integer", "free-plate modes per k in the Ritz basis, >= n_transverse (default "
+        Key("n_galerkin", "integer", "plate modes per k in the Ritz basis, >= n_transverse (default "
             "max(20, n_transverse + 12))", lo=RANGES["n_galerkin"][0], hi=RANGES["n_galerkin"][1]),
         Key("n_airy", "integer", "Airy functions per k", default=DEFAULTS["n_airy"], lo=RANGES["n_airy"][0],
             hi=RANGES["n_airy"][1]),
+        Key("edge", "choice", "edge condition: free, or clamped (w = dw/dr = 0, in-plane displacements 0)",
+            default=DEFAULTS["edge"], choices=EDGES),
     )
 
     def __init__(self, kappa: float = 0.0, nu: float = DEFAULTS["nu"], k_max: int = DEFAULTS["k_max"],
                  n_transverse: int = DEFAULTS["n_transverse"], n_galerkin: int | None = None,
-                 n_airy: int = DEFAULTS["n_airy"]):
+                 n_airy: int = DEFAULTS["n_airy"], edge: str = DEFAULTS["edge"]):
         if n_galerkin is None:
             n_galerkin = max(DEFAULTS["n_galerkin"], n_transverse + 12)
         _check(kappa, nu, k_max, n_transverse, n_galerkin, n_airy, None)
+        self.edge = _check_edge(edge, nu, None)
         self.kappa, self.nu = float(kappa), float(nu)
         self.k_max, self.n_transverse = int(k_max), int(n_transverse)
         self.n_galerkin, self.n_airy = int(n_galerkin), int(n_airy)
@@ -161,35 +173,36 @@ class VonKarmanShell(ModalModel):
         n_gal = kw.get("n_galerkin", max(DEFAULTS["n_galerkin"], n_tr + 12))
         _check(kw["kappa"], kw.get("nu", DEFAULTS["nu"]), kw.get("k_max", DEFAULTS["k_max"]), n_tr, n_gal,
                kw.get("n_airy", DEFAULTS["n_airy"]), scene_file)
+        _check_edge(kw.get("edge", DEFAULTS["edge"]), kw.get("nu", DEFAULTS["nu"]), scene_file)
         return kw
 
     # ------------------------------------------------------------------ build
     def _build(self) -> None:
-        nu, kmax = self.nu, self.k_max
-        self._airy = {k: _family("airy", k, self.n_airy, 0.0) for k in range(2 * kmax + 1)}
-        plates = {k: _family("plate", k, self.n_galerkin, nu) for k in range(kmax + 1)}
+        nu, kmax, edge = self.nu, self.k_max, self.edge
+        self._airy = {k: _family("airy", k, self.n_airy, nu, edge) for k in range(2 * kmax + 1)}
+        plates = {k: _family("plate", k, self.n_galerkin, nu, edge) for k in range(kmax + 1)}
         lam_max = max(max(f.lam.max() for f in self._airy.values()), max(f.lam.max() for f in plates.values()))
         panels = radial_panels(lam_max)
         self._r, self._w = panel_rule(panels, 16)
         r, w = self._r, self._w
-        self._airy_r = {k: _table("airy", k, self.n_airy, 0.0, panels)[0] for k in self._airy}
+        self._airy_r = {k: _table("airy", k, self.n_airy, nu, edge, panels)[0] for k in self._airy}
         self._xi4 = {k: f.lam**4 for k, f in self._airy.items()}
         beta = self.eps_c * self.kappa  # eps_q sqrt(kappa)
         self._fam: dict[int, _ShellFamily] = {}
         for k, pf in plates.items():
-            fr = _table("plate", k, self.n_galerkin, nu, panels)
+            fr = _table("plate", k, self.n_galerkin, nu, edge, panels)
             A = angular_weight(k) * (self._airy_r[k] * (r * w)) @ laplacian(fr, k, r).T  # (n_airy, n_gal)
             K = np.diag(pf.lam**4) + beta * (A.T / self._xi4[k]) @ A
             lam2, V = np.linalg.eigh(0.5 * (K + K.T))
             V = V[:, : self.n_transverse]
-            R1 = pf.evaluate(np.array([1.0]))[0][:, 0] @ V
+            R1 = pf.evaluate(np.array([1.0]))[sign_derivative(edge)][:, 0] @ V
             V = V * np.where(R1 < 0, -1.0, 1.0)
             f = (V.T @ fr[0], V.T @ fr[1], V.T @ fr[2])
             self._fam[k] = _ShellFamily(k, np.sqrt(lam2[: self.n_transverse]), V, pf, f, A @ V)
         # global mode list: (omega, k, n, companion)
         rows = []
         for k, fam in self._fam.items():
-            n0 = 1 if k in (0, 1) else 0
+            n0 = first_circle(edge, k)
             for j, om in enumerate(fam.omega):
                 for comp in (("cos",) if k == 0 else ("cos", "sin")):
                     rows.append((float(om), k, n0 + j, comp, j))
@@ -245,7 +258,7 @@ class VonKarmanShell(ModalModel):
 
     def index(self, k: int, n: int, companion: str = "cos") -> int:
         """Position of mode ``(k, n)`` (given companion) in :meth:`omegas`."""
-        n0 = 1 if k in (0, 1) else 0
+        n0 = first_circle(self.edge, k)
         key = (int(k), int(n) - n0, "cos" if k == 0 else companion)
         if key not in self._index:
             raise KeyError(f"mode {(k, n)} ({companion}) is not in the model "
@@ -286,7 +299,7 @@ class VonKarmanShell(ModalModel):
         if self._maxima is None:
             out = np.empty(len(self._rows))
             for k, fam in self._fam.items():
-                R = np.abs(fam.Q.T @ _shape_table(k, self.n_galerkin, self.nu))
+                R = np.abs(fam.Q.T @ _shape_table(k, self.n_galerkin, self.nu, self.edge))
                 for j in range(len(fam.omega)):
                     val = _peak(R[j], 1.0 / (R.shape[1] - 1))
                     for comp in (("cos",) if k == 0 else ("cos", "sin")):
@@ -301,7 +314,7 @@ class VonKarmanShell(ModalModel):
         return {
             "model": type(self).__name__, "solver": self.name, "kappa": self.kappa, "nu": self.nu,
             "k_max": self.k_max, "n_transverse": self.n_transverse, "n_galerkin": self.n_galerkin,
-            "n_airy": self.n_airy, "n_modes": int(self.n_modes), "radial_nodes": int(self._r.size),
+            "n_airy": self.n_airy, "edge": self.edge, "n_modes": int(self.n_modes), "radial_nodes": int(self._r.size),
             "normalisation": "integral of phi^2 over the unit disk = 1; omega nondimensional",
             "couplings_complete_for_k_up_to": self.k_max // 2,
             "build_seconds": round(self.build_seconds, 4),
@@ -309,24 +322,33 @@ class VonKarmanShell(ModalModel):
 
 
 @lru_cache(maxsize=256)
-def _family(kind: str, k: int, n: int, nu: float) -> RadialFamily:
-    """Plate modes / Airy functions, cached: they do not depend on kappa (a kappa sweep reuses them)."""
-    return clamped_plate_family(k, n) if kind == "airy" else free_plate_family(k, n, nu)
+def _family(kind: str, k: int, n: int, nu: float, edge: str) -> RadialFamily:
+    """Plate modes / Airy functions of ``edge``, cached: they do not depend on kappa (a kappa sweep
+    reuses them). ``nu`` is passed on only where the family depends on it (no cache entry per nu
+    for the free edge's Airy functions or the clamped plate modes)."""
+    if (kind == "airy") == (edge == "free"):
+        nu = 0.0
+    return _cached(kind, k, n, nu, edge)
 
 
 @lru_cache(maxsize=256)
-def _table(kind: str, k: int, n: int, nu: float, panels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cached(kind: str, k: int, n: int, nu: float, edge: str) -> RadialFamily:
+    return (airy_family if kind == "airy" else plate_family)(edge, k, n, nu)
+
+
+@lru_cache(maxsize=256)
+def _table(kind: str, k: int, n: int, nu: float, edge: str, panels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``R, R', R''`` of :func:`_family` on the radial rule with ``panels`` panels (read-only, cached)."""
-    out = _family(kind, k, n, nu).evaluate(panel_rule(panels, 16)[0])
+    out = _family(kind, k, n, nu, edge).evaluate(panel_rule(panels, 16)[0])
     for a in out:
         a.setflags(write=False)
     return out
 
 
 @lru_cache(maxsize=64)
-def _shape_table(k: int, n: int, nu: float) -> np.ndarray:
+def _shape_table(k: int, n: int, nu: float, edge: str) -> np.ndarray:
     """Plate radial functions ``R`` on 2001 equispaced radii in [0, 1] (read-only, cached)."""
-    R = _family("plate", k, n, nu).evaluate(np.linspace(0.0, 1.0, 2001))[0]
+    R = _family("plate", k, n, nu, edge).evaluate(np.linspace(0.0, 1.0, 2001))[0]
     R.setflags(write=False)
     return R
 
@@ -355,3 +377,12 @@ def _check(kappa: float, nu: float, k_max: int, n_transverse: int, n_galerkin: i
         raise SceneError(scene_file, "model.n_galerkin",
                          f"must be >= n_transverse = {n_transverse} (the shell modes are taken from "
                          f"a Ritz basis of n_galerkin plate modes), got {n_galerkin!r}")
+
+
+def _check_edge(edge: str, nu: float, scene_file: Path | None) -> str:
+    """``edge`` one of :data:`EDGES`; with the clamped edge, ``nu >= NU_MIN_CLAMPED`` (see there)."""
+    check_choice(scene_file, "model.edge", edge, EDGES)
+    if edge == "clamped" and nu < NU_MIN_CLAMPED:
+        raise SceneError(scene_file, "model.nu", f"must be >= {NU_MIN_CLAMPED!r} with edge = \"clamped\" (its Airy "
+                         f"functions, free-plate modes of Poisson ratio -nu, degenerate as nu -> -1), got {nu!r}")
+    return edge

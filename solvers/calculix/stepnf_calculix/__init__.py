@@ -35,8 +35,26 @@ Scene keys (``[model]``)::
     rho = 4400.0
 
 or, instead of ``[model.geometry]``, ``mesh = "part.inp"`` (a user's solid
-mesh: ``*NODE`` and ``*ELEMENT`` blocks of C3D* elements; the material of
-``[model.material]`` applies to every element). Optional run keys:
+mesh: ``*NODE`` and ``*ELEMENT`` blocks of C3D* elements, ``*NSET`` and
+``*ELSET`` sets; the material of ``[model.material]`` applies to every
+element), or ``deck = "model.inp"`` (a user's whole CalculiX model: nodes,
+elements, sets, ``*MATERIAL`` blocks, ``*SOLID SECTION`` s, ``*ORIENTATION`` s
+and zero ``*BOUNDARY`` lines kept as written, its ``*STEP`` blocks replaced by
+stepnf's; no ``[model.material]``; what stepnf cannot honour is refused with
+its line: :mod:`.userdeck`).
+
+Boundary conditions (:mod:`stepnf.boundary`)::
+
+    [[model.boundary]]
+    set = "LEFT"                   # an *NSET (or the nodes of an *ELSET); "edge": a generated cap's rim
+    dofs = ["ux", "uy", "uz"]      # optional; default: clamped
+    [[model.boundary]]
+    box = [[0.0, -1.0, -1.0], [0.0, 1.0, 1.0]]   # or the nodes inside a box
+
+add to a deck's own ``*BOUNDARY`` conditions. The fixed dofs are removed from
+the dofs the adapter exposes (K, M, forces, tangents): ccx runs the whole
+unconstrained model and the free rows and columns are kept, which is exact
+(see :class:`CalculixAdapter`). Optional run keys:
 ``template = "my_job.inp"`` (a job template with the placeholders
 ``${mesh_file}``, ``${steps}`` and, if it uses them, ``${E}``, ``${nu}``,
 ``${rho}``, ``${title}``; the shipped one is ``templates/job.inp``),
@@ -51,5 +69,6 @@ from __future__ import annotations
 
 from .adapter import CalculixAdapter, shipped_template
 from .inpmesh import read_inp_mesh
+from .userdeck import UserDeck, read_deck
 
-__all__ = ["CalculixAdapter", "shipped_template", "read_inp_mesh"]
+__all__ = ["CalculixAdapter", "shipped_template", "read_inp_mesh", "read_deck", "UserDeck"]

@@ -10,6 +10,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from stepnf.boundary import BOUNDARY_KEY, FreeDofs
+from stepnf.errors import SceneError
 from stepnf.external import (EXECUTABLE, RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene,
                              missing_output, require_files, solid_model_keys)
 from stepnf.external.keys import THREADS
@@ -23,9 +25,14 @@ from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
 ELEMENTS = ("hex20",)
 #: Scene keys of ``[model]`` (besides ``solver``; ``stepnf solvers --keys calculix``).
 MODEL_KEYS = Schema(
-    *solid_model_keys(ELEMENTS, (".inp",), "a user's solid mesh: *NODE and *ELEMENT blocks of C3D* elements"),
+    *solid_model_keys(ELEMENTS, (".inp",), "a user's solid mesh: *NODE and *ELEMENT blocks of C3D* elements, "
+                      "*NSET and *ELSET sets"),
+    Key("deck", "file", "a user's whole CalculiX model (nodes, elements, sets, materials, sections, *BOUNDARY; its "
+        "steps are replaced by stepnf's) instead of mesh or [model.geometry]", suffixes=(".inp",),
+        what="a CalculiX deck file name"),
+    BOUNDARY_KEY,
     Key("template", "file", "a job template with ${mesh_file}, ${steps} (and ${E}, ${nu}, ${rho}, ${title} if "
-        "used) instead of the shipped templates/job.inp", what="a job template file name"),
+        "used) instead of the shipped templates/job.inp (not with deck)", what="a job template file name"),
     EXECUTABLE, THREADS, *RUN_KEYS,
 )
 #: Largest number of ``*BOUNDARY`` lines (fields x dofs) in one deck; bigger batches are split over runs.
@@ -43,8 +50,17 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     """A solid model run by CalculiX ``ccx`` as a black box.
 
     Dofs: ``ux, uy, uz`` of every node, node by node in the order of
-    ``node_ids`` (dof ``3 i + d``); no dof is constrained (free structures;
-    K has the rigid-body modes in its null space).
+    ``node_ids`` (dof ``3 i + d``), the fixed ones removed when boundary
+    conditions fix some (:attr:`free_dofs`, :meth:`apply_boundary`; a free
+    structure has the rigid-body modes in the null space of K).
+
+    Constrained dofs: ccx always runs the whole, unconstrained model. Its force
+    steps prescribe every dof anyway (the fixed ones at 0), and the matrix and
+    tangent runs store K and M of every dof; the adapter then keeps the free
+    rows and columns. For homogeneous conditions this is exact: K and M of the
+    constrained model are the free-free blocks of the assembled matrices (a ccx
+    run with the same ``*BOUNDARY`` in its matrix step stores exactly these
+    numbers, bit for bit, and lists only the free dofs in its ``.dof`` file).
 
     Parameters
     ----------
@@ -55,6 +71,9 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     template : a user's job template (path) instead of the shipped ``job.inp``
     geometry : ``{"shape", "a", "R", "h"}`` for a generated cap (scales, Gamma)
     midsurface : (N,) bool, nodes on the mid-surface (for :meth:`transverse_amplitude`)
+    node_sets : named node sets ``{name: node positions}`` (for ``[[model.boundary]] set``)
+    deck : a user's deck (:class:`~.userdeck.UserDeck`): its model data is run instead of the mesh and
+        the template's material, and the dofs it fixes are removed
     threads : ``OMP_NUM_THREADS`` of the ccx runs (default: the environment's)
     executable, timeout, workdir, keep : see :class:`stepnf.external.ExternalSolverAdapter`
     """
@@ -80,6 +99,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         template: str | Path | None = None,
         geometry: Mapping[str, Any] | None = None,
         midsurface: np.ndarray | None = None,
+        node_sets: Mapping[str, np.ndarray] | None = None,
+        deck: Any = None,
         threads: int | None = None,
         **run: Any,
     ):
@@ -88,7 +109,11 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self.points = np.asarray(points, dtype=float)
         self.blocks = [(t, np.asarray(e, np.int64), np.asarray(c, np.int64)) for t, e, c in blocks]
         self.material = dict(material or {})
-        self.job_template = CommandTemplate.from_file(template) if template else shipped_template("job.inp")
+        self.deck = deck
+        if deck is not None and template is not None:
+            raise ValueError("a deck carries its own model data: give no job template with it")
+        default_job = "job.inp" if deck is None else "deck_job.inp"
+        self.job_template = CommandTemplate.from_file(template) if template else shipped_template(default_job)
         self.step_template = shipped_template("force_step.inp")
         self.matrix_template = shipped_template("matrix_step.inp")
         for key in ("mesh_file", "steps"):
@@ -99,26 +124,40 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             raise ValueError(f"{self.job_template.source} uses material constants {need}; give them in [model.material]")
         self.geometry = dict(geometry or {})
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
+        self.node_sets = node_sets if node_sets is not None else {}
         self.threads = threads
         self.hex20_cells: np.ndarray | None = None  # set by from_volume_mesh (mid-surface sampling)
-        self._mesh = mesh_text(self.node_ids, self.points, self.blocks)
-        self.max_fields_per_run = max(1, MAX_BOUNDARY_LINES // self.n_dofs)
+        if deck is None:
+            self._mesh, self.nset = mesh_text(self.node_ids, self.points, self.blocks), "NALL"
+        else:
+            from .userdeck import STEPNF_NSET
+
+            self._mesh, self.nset = deck.text, STEPNF_NSET
+            self.free_dofs = FreeDofs(self.n_full, deck.fixed) if len(deck.fixed) else None
+        self.max_fields_per_run = max(1, MAX_BOUNDARY_LINES // self.n_full)
         self._pos = np.full(int(self.node_ids.max()) + 1, -1)
         self._pos[self.node_ids] = np.arange(len(self.node_ids))
         self._K: sp.csr_matrix | None = None
         self._M: sp.csr_matrix | None = None
         self.timings: dict[str, float] = {}
 
+    @property
+    def n_full(self) -> int:
+        """Number of nodal dofs, fixed ones included (3 per node)."""
+        return 3 * len(self.node_ids)
+
     # ------------------------------------------------------------ builders
     @classmethod
     def from_volume_mesh(cls, mesh: Any, **kw: Any) -> "CalculixAdapter":
-        """From a :class:`stepnf.geometry.VolumeMesh` (or anything with ``points``, ``cells``, ``cell_type``)."""
+        """From a :class:`stepnf.geometry.VolumeMesh` (or anything with ``points``, ``cells``, ``cell_type``;
+        its ``node_sets``, if any, name node positions: a generated cap's ``"edge"``)."""
         if mesh.cell_type not in CCX_ELEMENTS:
             raise ValueError(f"cell type {mesh.cell_type!r} has no CalculiX element here. Pick one of {list(CCX_ELEMENTS)}")
         ccx_type, perm = CCX_ELEMENTS[mesh.cell_type]
         ids = np.arange(1, len(mesh.points) + 1)
         conn = np.asarray(mesh.cells)[:, perm] + 1
         kw.setdefault("midsurface", getattr(mesh, "midsurface", None))
+        kw.setdefault("node_sets", getattr(mesh, "node_sets", None))
         ad = cls(ids, mesh.points, [(ccx_type, np.arange(1, len(conn) + 1), conn)], **kw)
         if mesh.cell_type == "hexahedron20":
             ad.hex20_cells = np.asarray(mesh.cells, dtype=np.int64)
@@ -126,13 +165,34 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
     @classmethod
     def from_inp(cls, path: str | Path, **kw: Any) -> "CalculixAdapter":
-        """A user's mesh from an ``.inp`` file (see :mod:`.inpmesh`)."""
+        """A user's mesh from an ``.inp`` file, with its named sets (see :mod:`.inpmesh`)."""
         from .inpmesh import read_inp_mesh
 
         m = read_inp_mesh(path)
-        return cls(m.node_ids, m.points, m.blocks, **kw)
+        return cls(m.node_ids, m.points, m.blocks, node_sets=m.node_sets, **kw)
 
     from_mesh_file = from_inp  # the ``mesh`` key (SolidFromScene)
+
+    @classmethod
+    def from_deck(cls, path: str | Path, **kw: Any) -> "CalculixAdapter":
+        """A user's whole CalculiX deck (see :mod:`.userdeck`): its model data, materials and zero
+        ``*BOUNDARY`` conditions; its steps are replaced by stepnf's."""
+        from .userdeck import read_deck
+
+        d = read_deck(path)
+        return cls(d.mesh.node_ids, d.mesh.points, d.mesh.blocks, node_sets=d.mesh.node_sets, deck=d, **kw)
+
+    from_deck_file = from_deck  # the ``deck`` key (SolidFromScene)
+
+    @classmethod
+    def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
+                        scene_file: str | Path | None = None) -> dict[str, Any]:
+        """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); a deck takes no job template."""
+        c = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
+        if "deck" in c and "template" in c:
+            raise SceneError(scene_file, "model.template", f"the deck {c['deck']} is the model: stepnf includes it "
+                             "and appends its own steps, so no job template is used; remove template")
+        return c
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
@@ -143,6 +203,11 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                                               for k, v in self.geometry.items()},
             force_precision="7 significant digits (.dat)", solver_runs=len(self.runs),
         )
+        if self.deck is not None:
+            d["deck"] = self.deck.summary
+        if self.free_dofs is not None:
+            d["boundary"] = {"conditions": list(self.applied_conditions), **self.free_dofs.describe(),
+                             "from_deck": int(len(self.deck.fixed)) if self.deck is not None else 0}
         return d
 
     # ---------------------------------------------------------------- jobs
@@ -158,7 +223,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
     def write_force_job(self, workdir: Path, U: np.ndarray) -> list[str]:
         steps = "\n".join(
-            self.step_template.render(index=i + 1, boundary=format_boundary(self.node_ids, u.reshape(-1, 3)))
+            self.step_template.render(index=i + 1, nset=self.nset,
+                                      boundary=format_boundary(self.node_ids, self.nodal(u)))
             for i, u in enumerate(U)
         )
         return self._write_job(workdir, "forces", steps, f"internal forces of {len(U)} prescribed fields")
@@ -169,7 +235,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             F = read_dat_forces(dat, self.node_ids, m)
         except ResultFormatError as exc:
             raise missing_output(workdir, f"ccx output incomplete: {exc}") from None
-        return F.reshape(m, -1)
+        return self.free_part(F.reshape(m, -1))
 
     def _matrices(self) -> None:
         if self._K is not None:
@@ -178,11 +244,12 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         with self.work_folder(prefix="calculix-matrices-") as wd:
             argv = self._write_job(wd, "matrices", self.matrix_template.render(), "K and M (matrix storage)")
             rec = self.run(argv, wd)
-            self._K, self._M = self._read_stored_matrices(wd, "matrices", rec.log)
+            K, M = self._read_stored_matrices(wd, "matrices", rec.log)
+            self._K, self._M = self.free_part(K), self.free_part(M)
         self.timings["matrices"] = time.perf_counter() - t0
 
     def _read_stored_matrices(self, wd: Path, job: str, log: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-        """K and M of a ``SOLVER=MATRIXSTORAGE`` run, in this adapter's dof order.
+        """K and M of a ``SOLVER=MATRIXSTORAGE`` run, over every nodal dof in this adapter's order.
 
         Garbage, truncation or NaN in the ``.dof``/``.sti``/``.mas`` files is a
         :class:`~stepnf.errors.SolverRunError` naming the file, the work folder and the log's end.
@@ -192,7 +259,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             nodes, dirs = read_dof(dof)
         except ResultFormatError as exc:
             raise missing_output(wd, f"ccx output unreadable: {exc}") from None
-        n = self.n_dofs
+        n = self.n_full
         ok = (nodes >= 0) & (nodes <= self._pos.size - 1) & (dirs >= 1) & (dirs <= 3)
         index = np.where(ok, self._pos[np.clip(nodes, 0, self._pos.size - 1)] * 3 + dirs - 1, -1)
         if len(index) != n or np.any(index < 0) or len(np.unique(index)) != n:
@@ -209,18 +276,18 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def tangent_stiffness(self, u: np.ndarray) -> sp.csr_matrix:
         """Tangent stiffness ``df/du`` at the displacement ``u`` (n,), 14 digits (one ccx run).
 
-        An NLGEOM step prescribes ``u``; a ``*STEP, PERTURBATION`` then stores
-        the tangent at that state. For the exact cubic f of this model,
-        ``K_T(u) = K + 2 G(u, .) + 3 H(u, u, .)``.
+        An NLGEOM step prescribes ``u`` (the fixed dofs at 0); a ``*STEP, PERTURBATION``
+        then stores the tangent at that state, whose free rows and columns are kept. For
+        the exact cubic f of this model, ``K_T(u) = K + 2 G(u, .) + 3 H(u, u, .)``.
         """
         u = self._check_field(u)
         tpl = shipped_template("tangent_step.inp")
         with self.work_folder(prefix="calculix-tangent-") as wd:
-            steps = tpl.render(boundary=format_boundary(self.node_ids, u.reshape(-1, 3)))
+            steps = tpl.render(boundary=format_boundary(self.node_ids, self.nodal(u)))
             argv = self._write_job(wd, "tangent", steps, "tangent stiffness at a prescribed field")
             rec = self.run(argv, wd)
             KT, _ = self._read_stored_matrices(wd, "tangent", rec.log)
-        return KT
+        return self.free_part(KT)
 
     def sharp_step(self, phi: np.ndarray, q: float) -> tuple[np.ndarray, float]:
         """``G(phi, phi)`` (n,) and ``phi . H(phi, phi, phi)`` from the tangents at ``+-q phi`` (two ccx runs).

@@ -67,7 +67,8 @@ def read_dat_forces(path: str | Path, node_ids: np.ndarray, n_steps: int) -> np.
         nodes = vals[:, 0].astype(np.int64)
         if len(nodes) != len(node_ids) or np.any(nodes > pos.size - 1) or np.any(pos[nodes] < 0):
             raise ResultFormatError(
-                f"{path}: the force block of step {k} lists {len(nodes)} nodes, expected the {len(node_ids)} of NALL"
+                f"{path}: the force block of step {k} lists {len(nodes)} nodes, expected the {len(node_ids)} of "
+                "the printed node set"
             )
         if np.any(vals[:, 0] != nodes):
             raise ResultFormatError(f"{path}: the force block of step {k} has a non-integer node number")

@@ -12,6 +12,7 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
+from stepnf.boundary import BOUNDARY_KEY
 from stepnf.errors import SolverRunError
 from stepnf.external import (RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene, missing_output,
                              require_files, solid_model_keys)
@@ -20,7 +21,7 @@ from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
 from stepnf.schema import Key, Schema
 
-from .med import MedError, add_nodal_field, read_mesh_nodes, read_nodal_steps, write_med
+from .med import MedError, add_nodal_field, read_groups, read_mesh_nodes, read_nodal_steps, write_med
 
 ELEMENTS = ("hex20",)
 TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export")
@@ -38,7 +39,7 @@ MODEL_KEYS = Schema(
     Key("command", "text", "the command running one job; ${export} and ${workdir} are filled in",
         default=DEFAULT_COMMAND, what="a command"),
     Key("version", "text", "code_aster version of the .export file", default="stable", what="a version name"),
-    NCPUS, MEMORY_MB, *RUN_KEYS,
+    NCPUS, MEMORY_MB, *RUN_KEYS, BOUNDARY_KEY,
 )
 FIELD_IN, FIELD_OUT = "U", "F"
 REAL = "%.17g"
@@ -93,7 +94,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                  cell_type: str = "hexahedron20", mesh_file: str | Path | None = None, mesh_name: str = "mesh",
                  templates: str | Path | None = None, command: str = DEFAULT_COMMAND, version: str = "stable",
                  ncpus: int = 1, memory_mb: int = 4096, geometry: Mapping[str, Any] | None = None,
-                 midsurface: np.ndarray | None = None, **run: Any):
+                 midsurface: np.ndarray | None = None, node_sets: Mapping[str, np.ndarray] | None = None,
+                 **run: Any):
         cmd = CommandTemplate(command, source="[model] command")
         if not cmd.text.split():
             raise ValueError("empty code_aster command")
@@ -112,6 +114,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self.templates = {name: self._template(name, templates) for name in TEMPLATE_NAMES}
         self.geometry = dict(geometry or {})
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
+        self.node_sets = dict(node_sets or {})
         self._K: sp.csr_matrix | None = None
         self._M: sp.csr_matrix | None = None
         self.hex20_cells = self.cells if cell_type == "hexahedron20" else None
@@ -130,6 +133,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         if mesh.cell_type != "hexahedron20":
             raise ValueError(f"cell type {mesh.cell_type!r} not supported here. Pick one of ['hexahedron20']")
         kw.setdefault("midsurface", getattr(mesh, "midsurface", None))
+        kw.setdefault("node_sets", getattr(mesh, "node_sets", None))
         return cls(mesh.points, cells=mesh.cells, cell_type=mesh.cell_type, **kw)
 
     @classmethod
@@ -138,7 +142,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         from .med import mesh_name as first_mesh
 
         name = mesh_name or first_mesh(path)
-        return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, **kw)
+        return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, node_sets=read_groups(path, name),
+                   **kw)
 
     from_mesh_file = from_med  # the ``mesh`` key (SolidFromScene)
 
@@ -149,6 +154,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                  geometry={k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
                            for k, v in self.geometry.items()},
                  templates={k: t.source for k, t in self.templates.items()})
+        if self.free_dofs is not None:
+            d["boundary"] = {"conditions": list(self.applied_conditions), **self.free_dofs.describe()}
         return d
 
     # ----------------------------------------------------------------- jobs
@@ -167,7 +174,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         steps = None
         if U is not None:
             n = len(self.points)
-            steps = [(0.0, np.zeros((n, 3)))] + [(float(i + 1), u.reshape(n, 3)) for i, u in enumerate(U)]
+            steps = [(0.0, np.zeros((n, 3)))] + [(float(i + 1), self.nodal(u)) for i, u in enumerate(U)]
         if self.mesh_file is not None:
             shutil.copyfile(self.mesh_file, target)
             if steps is not None:
@@ -215,7 +222,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                 raise missing_output(workdir, f"forces.rmed: field {FIELD_OUT!r} lacks components "
                                               f"{[c for c, j in zip(COMPONENTS, idx) if j < 0]}")
             F[i - 1] = s.full(n)[:, idx].ravel()
-        return F
+        return self.free_part(F)
 
     def _matrices(self) -> None:
         if self._K is not None:
@@ -226,7 +233,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             argv = self.render_job(wd, "matrices")
             rec = self.run(argv, wd)
             (npz,) = require_files(wd, ["matrices.npz"], log=rec.log, what="code_aster")
-            self._K, self._M = self._read_matrices(npz, wd)
+            K, M = self._read_matrices(npz, wd)
+            self._K, self._M = self.free_part(K), self.free_part(M)
         self.timings["matrices"] = time.perf_counter() - t0
 
     def _read_matrices(self, path: Path, workdir: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
@@ -238,7 +246,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             M = triplets_to_matrix(z["M_values"], z["M_rows"], z["M_cols"], n_eq)
         code = {c: i for i, c in enumerate(COMPONENTS)}
         index = np.array([3 * nd + code.get(c, -10 ** 9) for nd, c in zip(nodes, comps)], dtype=np.int64)
-        n = self.n_dofs
+        n = 3 * len(self.points)  # the solver assembles every nodal dof; fixed ones are removed after
         if n_eq != n or len(index) != n or index.min() < 0 or len(np.unique(index)) != n:
             raise missing_output(workdir, f"matrices.npz: {n_eq} equations ({sorted(set(comps))}), expected "
                                           f"the {n} translations DX DY DZ of {n // 3} nodes and nothing else")

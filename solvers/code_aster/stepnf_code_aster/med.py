@@ -320,3 +320,50 @@ def read_mesh_nodes_h5(f, mesh: str | None = None) -> np.ndarray:
     coo = st["NOE"]["COO"]
     n = int(coo.attrs["NBR"])
     return np.asarray(coo, dtype=float).reshape((n, -1), order="F")
+
+
+def read_groups(path: str | Path, mesh: str | None = None) -> dict[str, np.ndarray]:
+    """The mesh's named groups as node sets ``{name: 0-based node indices}`` (for ``[[model.boundary]]``).
+
+    A MED group is a name carried by families: a node family (``NUM > 0``) holds the nodes whose
+    ``NOE/FAM`` is its number, a cell family (``NUM < 0``) the cells whose ``MAI/<type>/FAM`` is; a
+    group of cells names the nodes of those cells (a face group names the nodes of its faces).
+    """
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            name = mesh or next(iter(f["ENS_MAA"]))
+            families = _family_groups(f, name)
+            st = next(iter(f["ENS_MAA"][name].values()))
+            found: dict[str, list[np.ndarray]] = {}
+            fam = np.asarray(st["NOE"]["FAM"]) if "FAM" in st["NOE"] else np.zeros(0, dtype=int)
+            for num, groups in families.items():
+                if num > 0:
+                    for g in groups:
+                        found.setdefault(g, []).append(np.flatnonzero(fam == num))
+            for block in (st["MAI"].values() if "MAI" in st else ()):
+                if "FAM" not in block or "NOD" not in block:
+                    continue
+                cfam = np.asarray(block["FAM"])
+                conn = np.asarray(block["NOD"]).reshape((len(cfam), -1), order="F") - 1
+                for num, groups in families.items():
+                    if num < 0 and np.any(cfam == num):
+                        for g in groups:
+                            found.setdefault(g, []).append(conn[cfam == num].ravel())
+    except (OSError, KeyError, ValueError, StopIteration) as exc:
+        raise MedError(f"{path}: cannot read the groups of the MED mesh ({type(exc).__name__}: {exc})") from None
+    return {g: np.unique(np.concatenate(parts)) for g, parts in found.items()}
+
+
+def _family_groups(f, mesh: str) -> dict[int, list[str]]:
+    """Family number -> group names, from ``FAS/<mesh>`` (80-byte names)."""
+    out: dict[int, list[str]] = {}
+    fas = f["FAS"][mesh] if "FAS" in f and mesh in f["FAS"] else {}
+    for kind in ("NOEUD", "ELEME"):
+        for fam in (fas[kind].values() if kind in fas else ()):
+            if "GRO" not in fam:
+                continue
+            names = np.asarray(fam["GRO"]["NOM"][()]).reshape(-1, 80).astype(np.uint8)
+            out[int(fam.attrs["NUM"])] = [bytes(row).decode("ascii", "replace").strip() for row in names]
+    return out

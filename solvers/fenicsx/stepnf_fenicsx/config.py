@@ -20,6 +20,16 @@
     E = 1.04e11
     nu = 0.3
     rho = 4400.0
+    [[model.boundary]]           # optional, repeated: zero displacements (stepnf.boundary)
+    set = "edge"                 # a named node set: "edge" on a generated cap, the file's sets with mesh
+    dofs = ["ux", "uy", "uz"]    # optional (default: clamped)
+
+Boundary conditions: ``set`` names a node set (a generated cap has
+``"edge"``, every node of its lateral face; a mesh file has the point sets,
+cell sets, Gmsh physical groups and MED groups meshio reads), or ``box =
+[[x0, y0, z0], [x1, y1, z1]]`` selects the nodes inside; the dofs they fix
+are removed (:mod:`stepnf_fenicsx.constraints`). Sets and boxes are resolved
+when the model is built (the mesh is read then).
 
 With ``mesh``, ``[model.geometry]`` may still give ``a``, ``R``, ``h``
 (without ``shape``) so that shell scales, Gamma and mode labels are
@@ -38,6 +48,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
+from stepnf.boundary import BOUNDARY_KEY, boundary_conditions
 from stepnf.errors import SceneError
 from stepnf.geometry import keys as cap_keys
 from stepnf.schema import Key, Schema
@@ -54,11 +65,13 @@ MODEL_KEYS = Schema(
     # 12: exact for every element used
     Key("quadrature_degree", "integer", "quadrature degree of the forms", default=4, lo=2, hi=12),
     *cap_keys.CAP_TABLES,
+    BOUNDARY_KEY,
 )
 
 
 def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -> dict[str, Any]:
-    """Check the keys and return ``{element, material, geometry (or None), mesh (Path or None), quadrature_degree}``."""
+    """Check the keys and return ``{element, material, geometry (or None), mesh (Path or None), quadrature_degree,
+    boundary}`` (``boundary``: a list of :class:`stepnf.boundary.BoundaryCondition`, empty when none)."""
     f = scene_file
     c = MODEL_KEYS.check(config, file=f, where="model", base_dir=base_dir, reserved=("solver",))
     if "material" not in c:
@@ -86,4 +99,5 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
         geometry = {"a": a, "R": R, "h": h}
         geometry.update(cap_keys.cap_resolution(geo, f))  # the mesh-size limit of every cap
     return {"element": c.get("element", "hex27"), "material": mat, "geometry": geometry,
-            "mesh": mesh, "quadrature_degree": c.get("quadrature_degree", 4)}
+            "mesh": mesh, "quadrature_degree": c.get("quadrature_degree", 4),
+            "boundary": boundary_conditions(c.get("boundary"), f)}

@@ -31,11 +31,16 @@ as the serial core does; only shifts above the computed spectrum cost a new
 parallel factorisation.
 
 Dof order: PETSc's global order (the owned dofs of rank 0, then of rank 1,
-...), node-major ``(ux, uy, uz)`` as in the serial adapter. It differs from the
-serial run's order and depends on the number of processes; the results (T,
-Gamma, labels, frequencies) do not depend on it. Rank 0 alone writes files
-and prints: ``stepnf run`` handles that, a script using the Python API should
-write only where :func:`is_root` holds. The adapter declares ``collective``,
+...), node-major ``(ux, uy, uz)`` as in the serial adapter; with boundary
+conditions, the same order without the fixed dofs (:mod:`stepnf_fenicsx.layout`):
+each rank marks the fixed dofs among its local ones (the mesh's node sets are
+read on every rank), their union is fixed, K and M are the PETSc sub-matrices
+of the free dofs (the eigen-solve and the shifted solves run on them), and
+fields are expanded to the whole space for the assembly of the forces. The
+order differs from the serial run's and depends on the number of processes;
+the results (T, Gamma, labels, frequencies) do not depend on it. Rank 0 alone
+writes files and prints: ``stepnf run`` handles that, a script using the
+Python API should write only where :func:`is_root` holds. The adapter declares ``collective``,
 so the pipeline keeps no force checkpoint (a rank reusing stored forces would
 skip calls the other ranks make).
 """
@@ -48,80 +53,17 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from stepnf.boundary import FreeDofs
 from stepnf.errors import NumericalError
 
 from . import _compat
+from .layout import FreeLayout, GlobalLayout, RankBlocks, gather_matrix
 from .serial import FenicsxAdapter
 
 
 def is_root() -> bool:
     """True on rank 0 of ``MPI.COMM_WORLD`` (and in a serial run)."""
     return _compat.comm_world().rank == 0
-
-
-class GlobalLayout:
-    """PETSc's global numbering of a blocked dolfinx space, and the gathers/scatters it needs.
-
-    ``n`` global dofs; this rank owns ``start .. start + n_owned``;
-    ``local_dofs[i]`` is the global dof of entry ``i`` of a function's local
-    array (owned then ghost dofs).
-    """
-
-    def __init__(self, V):
-        from mpi4py import MPI
-
-        self.comm = V.mesh.comm
-        im, bs = V.dofmap.index_map, int(V.dofmap.index_map_bs)
-        n_local = im.size_local + im.num_ghosts
-        nodes = np.asarray(im.local_to_global(np.arange(n_local, dtype=np.int32)), dtype=np.int64)
-        self.local_dofs = (nodes[:, None] * bs + np.arange(bs)).ravel()
-        self.n_owned = int(im.size_local * bs)
-        self.start = int(im.local_range[0] * bs)
-        self.counts = np.asarray(self.comm.allgather(self.n_owned), dtype=np.int64)
-        self.displs = np.concatenate([[0], np.cumsum(self.counts)[:-1]]).astype(np.int64)
-        self.n = int(self.counts.sum())
-        if self.n != im.size_global * bs or self.start != self.displs[self.comm.rank]:
-            raise RuntimeError("dolfinx's owned dof ranges are not contiguous in rank order")
-        self._double = MPI.DOUBLE
-
-    def gather(self, owned: np.ndarray) -> np.ndarray:
-        """The global vector (n,) on every rank from each rank's owned entries."""
-        owned = np.ascontiguousarray(owned, dtype=float)
-        out = np.empty(self.n)
-        self.comm.Allgatherv(owned, [out, self.counts, self.displs, self._double])
-        return out
-
-    def owned(self, u: np.ndarray) -> np.ndarray:
-        """This rank's owned entries of a global vector."""
-        return u[self.start:self.start + self.n_owned]
-
-    def local(self, u: np.ndarray) -> np.ndarray:
-        """This rank's local (owned + ghost) entries of a global vector."""
-        return u[self.local_dofs]
-
-
-def _allgatherv(comm, x: np.ndarray, mpi_type) -> np.ndarray:
-    counts = np.asarray(comm.allgather(len(x)), dtype=np.int64)
-    displs = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    out = np.empty(int(counts.sum()), dtype=x.dtype)
-    comm.Allgatherv(np.ascontiguousarray(x), [out, counts, displs, mpi_type])
-    return out
-
-
-def gather_matrix(A, layout: GlobalLayout) -> sp.csr_matrix:
-    """The global scipy CSR copy, on every rank, of a distributed PETSc AIJ matrix (global numbering)."""
-    from mpi4py import MPI
-
-    lo, hi = A.getOwnershipRange()
-    if (lo, hi) != (layout.start, layout.start + layout.n_owned):
-        raise RuntimeError(f"PETSc row range {(lo, hi)} differs from the dof layout's")
-    indptr, indices, data = A.getValuesCSR()
-    comm = layout.comm
-    row_nnz = _allgatherv(comm, np.diff(indptr).astype(np.int64), MPI.INT64_T)
-    cols = _allgatherv(comm, np.asarray(indices, dtype=np.int64), MPI.INT64_T)
-    vals = _allgatherv(comm, np.asarray(data, dtype=float), MPI.DOUBLE)
-    ptr = np.concatenate([[0], np.cumsum(row_nnz)])
-    return sp.csr_matrix((vals, cols, ptr), shape=(layout.n, layout.n))
 
 
 class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
@@ -145,11 +87,17 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
     #: shifted solves below the computed spectrum by deflation + CG (one factorisation for all shifts)
     use_deflation = True
 
+    #: PETSc's numbering of the whole space (the assembly's); built with the space
+    full_layout: GlobalLayout
+    #: the adapter's numbering (the free dofs'), that of every array crossing its interface
+    layout: RankBlocks
+
     def __init__(self, *args: Any, **kwargs: Any):
         super().__init__(*args, **kwargs)
         t0 = time.perf_counter()
-        self.layout = GlobalLayout(self._V)
-        self._nodes = self.layout.gather(self._nodes[: self.layout.n_owned // 3].ravel()).reshape(-1, 3)
+        full = self._whole_space_layout()
+        self._nodes = full.gather(self._nodes[: full.n_owned // 3].ravel()).reshape(-1, 3)
+        self.layout = full if self._free is None else FreeLayout(full, self._free)
         self._n = self.layout.n
         self._Kp = None  # distributed PETSc matrices
         self._Mp = None
@@ -164,19 +112,38 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
     def _mesh_comm(self):
         return _compat.comm_world()
 
+    def _whole_space_layout(self) -> GlobalLayout:
+        if getattr(self, "full_layout", None) is None:
+            self.full_layout = GlobalLayout(self._V)
+        return self.full_layout
+
+    def _free_dofs(self, local_mask: np.ndarray) -> FreeDofs:
+        """The union over ranks of the dofs each fixes among its local ones (global numbering)."""
+        return self._whole_space_layout().free_dofs(local_mask)
+
     # ------------------------------------------------------------ assembly
     def _assemble(self, form, fields: Sequence[tuple[Any, np.ndarray]]) -> np.ndarray:
+        full = self.full_layout
         for fn, u in fields:
-            _compat.set_values(fn, self.layout.local(np.asarray(u, dtype=float)))
-        return self.layout.gather(_compat.assemble_owned(form, self.layout.n_owned))
+            _compat.set_values(fn, full.local(self._expand(np.asarray(u, dtype=float))))
+        return self._restrict(full.gather(_compat.assemble_owned(form, full.n_owned)))
 
     def _petsc_matrices(self):
         if self._Kp is None:
             t0 = time.perf_counter()
-            self._Kp = _compat.assemble_petsc_matrix(self._forms.K_form)
-            self._Mp = _compat.assemble_petsc_matrix(self._forms.M_form)
+            self._Kp = self._free_part(_compat.assemble_petsc_matrix(self._forms.K_form))
+            self._Mp = self._free_part(_compat.assemble_petsc_matrix(self._forms.M_form))
             self.timings["assembly_petsc"] = time.perf_counter() - t0
         return self._Kp, self._Mp
+
+    def _free_part(self, A):
+        """The distributed ``A[free, free]`` of a whole-space PETSc matrix (``A`` itself when all are free)."""
+        if self._free is None:
+            return A
+        try:
+            return self.layout.submatrix(A)
+        finally:
+            A.destroy()
 
     def _build_stiffness(self) -> sp.csr_matrix:
         return gather_matrix(self._petsc_matrices()[0], self.layout)

@@ -1,7 +1,7 @@
 """The serial ``fenicsx`` adapter: a St Venant-Kirchhoff solid assembled by FEniCSx on one process.
 
 :class:`FenicsxAdapter` (the entry point ``stepnf_fenicsx:FenicsxAdapter``)
-and :func:`read_mesh`. Under ``mpirun -n N`` (N > 1) the builders
+and :func:`read_mesh` (:mod:`stepnf_fenicsx.meshfile`). Under ``mpirun -n N`` (N > 1) the builders
 :meth:`FenicsxAdapter.cap` and :meth:`FenicsxAdapter.from_config` return the
 distributed variant instead, the subclass declared with ``distributed=True``
 (:class:`stepnf_fenicsx.parallel.DistributedFenicsxAdapter`, whose dof order
@@ -11,8 +11,12 @@ package does (:mod:`stepnf_fenicsx.adapter`), so no module imports back up.
 
 Dofs are FEniCSx's own order of the vector P2/Q2 space: node-major,
 ``(ux, uy, uz)`` of node 0, then node 1, ... (``dof_directions`` = 0, 1, 2
-repeated); ``dof_coordinates`` gives each dof's node. No boundary conditions
-(free edge: six rigid-body modes). Units are those of the mesh and material
+repeated); ``dof_coordinates`` gives each dof's node. Without boundary
+conditions the solid is free (six rigid-body modes); ``boundary`` (the scene's
+``[[model.boundary]]``) fixes directions of the nodes of named sets or boxes
+(:mod:`stepnf_fenicsx.constraints`) and those dofs are removed: every array
+the adapter exposes covers the free dofs, :meth:`FenicsxAdapter.free_dof_map`
+maps them into the whole space. Units are those of the mesh and material
 (SI for the bundled examples).
 """
 from __future__ import annotations
@@ -21,53 +25,21 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
+from stepnf.boundary import BoundaryCondition, FreeDofs
 from stepnf.errors import SceneError
 from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals, spherical_cap
 
 from . import _compat
 from ._forms_adapter import FormsAdapter
 from .config import MODEL_KEYS, parse_model
+from .constraints import as_conditions, describe_conditions, dof_node_mask, free_dofs_of, point_mask
+from .labels import count_edge_circle
+from .meshfile import read_mesh
 from .model import Material, SvkForms
-
-
-def read_mesh(path: str | Path) -> VolumeMesh:
-    """Read the volume cells of any file meshio reads (one supported cell type).
-
-    Every defect :func:`stepnf.geometry.checks.check_volume_mesh` knows (no
-    cells, NaN coordinates, dangling node numbers, flat meshes, coincident
-    nodes, degenerate, tangled or overlapping cells) is a
-    :class:`~stepnf.errors.MeshError` naming the file and the cell or node
-    (0-based positions in the file, cells counted within their type).
-    """
-    import meshio
-
-    from stepnf.errors import MeshError
-    from stepnf.geometry.checks import check_volume_mesh
-
-    try:
-        m = meshio.read(str(path))
-    except SystemExit as exc:  # meshio exits (!) on a file it cannot identify
-        raise MeshError(path, "meshio cannot read this file (unknown or corrupt format)") from exc
-    found = [c.type for c in m.cells]
-    kinds = [c.type for c in m.cells if c.type in _compat.CELLS]
-    if not kinds:
-        raise MeshError(path, f"no volume cells dolfinx can use; found {found or 'no cells at all'}, "
-                              f"supported {list(_compat.CELLS)}")
-    if len(set(kinds)) > 1:
-        raise MeshError(path, f"mixed volume cell types {sorted(set(kinds))}; give one cell type")
-    cells = np.concatenate([np.asarray(c.data) for c in m.cells if c.type == kinds[0]])
-    pts = np.asarray(m.points)
-    check_volume_mesh(pts, [(kinds[0], cells)], source=path, supported=list(_compat.CELLS))
-    cells = cells.astype(np.int64)
-    used = np.unique(cells)
-    renum = np.full(len(pts), -1)
-    renum[used] = np.arange(len(used))
-    return VolumeMesh(points=np.asarray(pts, dtype=float)[used], cells=renum[cells], cell_type=kinds[0],
-                      info={"file": str(path)})
 
 
 class FenicsxAdapter(FormsAdapter):
@@ -80,6 +52,10 @@ class FenicsxAdapter(FormsAdapter):
     degree : polynomial degree of the displacement (2: Q2 on hexahedra, P2 on tetrahedra)
     geometry : optional ``{a, R, h}`` of a shallow spherical cap (shell scales, labels)
     quadrature_degree : quadrature degree of every form (4: 3x3x3 Gauss points on hexahedra)
+    boundary : zero-displacement conditions on the mesh's node sets (``mesh.node_sets``) or boxes:
+        :class:`stepnf.boundary.BoundaryCondition` s or ``[[model.boundary]]`` tables
+        (``{"set": "edge"}``); their dofs are removed
+    scene_file : the scene, named by messages about ``boundary``
     """
 
     name = "fenicsx"
@@ -87,21 +63,31 @@ class FenicsxAdapter(FormsAdapter):
     provides_intrusive_tensors = True
 
     def __init__(self, mesh: VolumeMesh, material: Material, *, degree: int = 2,
-                 geometry: Mapping[str, float] | None = None, quadrature_degree: int = 4):
+                 geometry: Mapping[str, float] | None = None, quadrature_degree: int = 4,
+                 boundary: Sequence[BoundaryCondition | Mapping[str, Any]] = (), scene_file: Path | None = None):
         t0 = time.perf_counter()
         self.mesh = mesh
         self.material = material
         self.geometry = None if geometry is None else dict(geometry)
         self.degree = int(degree)
         self.quadrature_degree = int(quadrature_degree)
-        msh, _ = _compat.create_mesh(mesh.points, mesh.cells, mesh.cell_type, comm=self._mesh_comm())
+        self.boundary = as_conditions(boundary, scene_file)
+        # the sets and boxes are resolved first: a bad one is refused before any compilation
+        mask, self._bc_nodes = point_mask(self.boundary, mesh.points, mesh.node_sets, scene_file,
+                                          mesh.info.get("file"))
+        msh, input_index = _compat.create_mesh(mesh.points, mesh.cells, mesh.cell_type, comm=self._mesh_comm())
         self._V = _compat.vector_space(msh, self.degree)
         self._nodes, bs = _compat.dof_layout(self._V)
         assert bs == 3
+        self._free = self._free_dofs(dof_node_mask(self._V, input_index, mask)) if self.boundary else None
         self._forms = SvkForms(self._V, material, self.quadrature_degree)
-        self._n = 3 * len(self._nodes)
+        self._n = 3 * len(self._nodes) if self._free is None else self._free.n_free
         self._labeler: ModeLabeler | None = None
         self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
+
+    def _free_dofs(self, local_mask: np.ndarray) -> FreeDofs:
+        """The free dofs, from the fixed directions of this process's dof nodes (serial: all of them)."""
+        return free_dofs_of(local_mask)
 
     def _mesh_comm(self):
         """Communicator of the dolfinx mesh: ``None`` (``COMM_SELF``, serial) here."""
@@ -131,17 +117,20 @@ class FenicsxAdapter(FormsAdapter):
 
     @classmethod
     def cap(cls, a: float, R: float, h: float, *, E: float, nu: float, rho: float, element: str = "hex27",
-            quadrature_degree: int = 4, **resolution: Any) -> "FenicsxAdapter":
-        """A free-edge spherical cap (``R = inf``: flat plate); see :func:`stepnf.geometry.spherical_cap`."""
+            quadrature_degree: int = 4, boundary: Sequence[BoundaryCondition | Mapping[str, Any]] = (),
+            scene_file: Path | None = None, **resolution: Any) -> "FenicsxAdapter":
+        """A spherical cap (``R = inf``: flat plate), free unless ``boundary`` holds it (its node set ``"edge"``:
+        every node of the lateral face); see :func:`stepnf.geometry.spherical_cap`."""
         if element not in ("hex27", "tet10"):
             raise ValueError(f"Unknown element {element!r}. Pick one of ['hex27', 'tet10']")
         mesh = spherical_cap(a, R, h, element="hex27", **resolution)
         if element == "tet10":
             from stepnf.geometry.tets import hex27_to_tetra
 
-            mesh = hex27_to_tetra(mesh)
+            mesh = hex27_to_tetra(mesh)  # its node sets are the hexahedra's, less the nodes it drops
         return cls._class_for_world()(mesh, Material(E, nu, rho), geometry={"a": a, "R": R, "h": h},
-                                      quadrature_degree=quadrature_degree)
+                                      quadrature_degree=quadrature_degree, boundary=boundary,
+                                      scene_file=scene_file)
 
     @classmethod
     def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
@@ -162,7 +151,8 @@ class FenicsxAdapter(FormsAdapter):
             g = dict(p["geometry"])
             try:
                 ad = cls.cap(g.pop("a"), g.pop("R"), g.pop("h"), element=p["element"],
-                             quadrature_degree=p["quadrature_degree"], **mat, **g)
+                             quadrature_degree=p["quadrature_degree"], boundary=p["boundary"],
+                             scene_file=scene_file, **mat, **g)
             except ValueError as exc:
                 raise SceneError(scene_file, "model.geometry", str(exc)) from exc
             if getattr(ad, "mesh", None) is not None:
@@ -174,14 +164,15 @@ class FenicsxAdapter(FormsAdapter):
             raise SceneError(scene_file, "model.mesh", f"cannot read {str(p['mesh'])!r}: {exc}") from exc
         units_warning(mesh.points, mat, source=p["mesh"], thickness=thickness)
         return cls._class_for_world()(mesh, Material(**mat), geometry=p["geometry"],
-                                      quadrature_degree=p["quadrature_degree"])
+                                      quadrature_degree=p["quadrature_degree"], boundary=p["boundary"],
+                                      scene_file=scene_file)
 
     # ------------------------------------------------------------ geometry
     def dof_coordinates(self) -> np.ndarray:
-        return np.repeat(self._nodes, 3, axis=0)
+        return self._free_rows(np.repeat(self._nodes, 3, axis=0))
 
     def dof_directions(self) -> np.ndarray:
-        return np.tile(np.arange(3), len(self._nodes))
+        return self._free_rows(np.tile(np.arange(3), len(self._nodes)))
 
     def characteristic_length(self) -> float | None:
         if self.geometry is not None:
@@ -213,7 +204,8 @@ class FenicsxAdapter(FormsAdapter):
         return np.arange(len(X))
 
     def _node_displacements(self, phi: np.ndarray) -> np.ndarray:
-        return np.asarray(phi, dtype=float).reshape(-1, 3)
+        """(dof nodes, 3) displacements of a free field (zeros where fixed)."""
+        return self._expand(np.asarray(phi, dtype=float)).reshape(-1, 3)
 
     def transverse_amplitude(self, phi: np.ndarray) -> float:
         mid = self._midsurface_nodes()
@@ -222,13 +214,32 @@ class FenicsxAdapter(FormsAdapter):
         return float(np.max(np.abs(w)))
 
     def mode_labels(self, Phi: np.ndarray) -> list[Any]:
+        """(k, n) of each mode; with the rim held (:meth:`edge_is_held`) n counts the edge as a nodal circle
+        (:mod:`stepnf_fenicsx.labels`)."""
         Phi = np.asarray(Phi, dtype=float)
         if self._labeler is None:
             mid = self._midsurface_nodes()
             radius = float(self.geometry["a"]) if self.geometry else float(
                 np.hypot(self._nodes[:, 0], self._nodes[:, 1]).max())
             self._labeler = ModeLabeler(self._nodes[mid, :2], mid, outward_normals(self._nodes, self._R()), radius)
-        return [self._labeler.label(self._node_displacements(Phi[:, j])) for j in range(Phi.shape[1])]
+        labels = [self._labeler.label(self._node_displacements(Phi[:, j])) for j in range(Phi.shape[1])]
+        return count_edge_circle(labels) if self.edge_is_held() else labels
+
+    def edge_is_held(self) -> bool:
+        """True for a plate or shell (``geometry`` known) whose boundary conditions zero the normal displacement
+        at every mid-surface node of its rim (plan radius ``a``): a clamped or simply supported edge."""
+        if self._free is None or self.geometry is None:
+            return False
+        mid = self._midsurface_nodes()
+        X = self._nodes[mid]
+        rim = mid[np.hypot(X[:, 0], X[:, 1]) >= float(self.geometry["a"]) * (1 - 1e-6)]
+        if rim.size == 0:
+            return False
+        fixed = np.zeros(self._free.n_full, dtype=bool)
+        fixed[self._free.fixed] = True
+        free_dirs = ~fixed.reshape(-1, 3)[rim]
+        normals = outward_normals(self._nodes[rim], self._R())
+        return bool(np.all(np.abs(normals[free_dirs]) <= 1e-12))
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
@@ -239,4 +250,6 @@ class FenicsxAdapter(FormsAdapter):
             d["geometry"] = {k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
                              for k, v in self.geometry.items()}
         d["mesh"] = {k: (str(v) if isinstance(v, float) and math.isinf(v) else v) for k, v in d["mesh"].items()}
+        if self.boundary:
+            d["boundary"] = describe_conditions(self.boundary, self._bc_nodes, self._free)
         return d

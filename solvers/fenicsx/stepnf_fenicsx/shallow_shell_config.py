@@ -18,6 +18,16 @@
     E = 1.04e11
     nu = 0.3
     rho = 4400.0
+    [[model.boundary]]           # optional: the edge held (default: free)
+    set = "edge"                 # the only set: the rim of the disk
+    dofs = ["ux", "uy", "uz"]    # clamped (default), or ["uz"]: simply supported
+
+Edge conditions (:mod:`stepnf_fenicsx.shallow_shell`): ``set = "edge"`` with
+every dof (the default) clamps the edge (``u = v = w = 0`` at its dofs, the
+normal slope ``dw/dn = 0`` weakly by a Nitsche term); ``dofs = ["uz"]``
+supports it simply (``w = 0``; in-plane displacements and slope free, so the
+three in-plane rigid motions remain). Other sets, boxes and other dof lists
+are refused when the model is built.
 
 The geometry keys are the 3D adapter's ``a``, ``R``, ``h`` (``shape``, if
 given, must be ``"spherical_cap"``), with the ranges of :mod:`stepnf.geometry.keys`;
@@ -28,6 +38,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
+from stepnf.boundary import BOUNDARY_KEY, boundary_conditions
 from stepnf.geometry import keys as cap_keys
 from stepnf.schema import Key, Schema
 
@@ -57,12 +68,14 @@ MODEL_KEYS = Schema(
     Key("quadrature_degree", "integer", "quadrature degree of the forms (default 2 degree)", lo=2, hi=12),
     Key("material", "table", "the material", table=cap_keys.MATERIAL, required=True),
     Key("geometry", "table", "the shallow cap and its mesh resolution", table=GEOMETRY, required=True),
+    BOUNDARY_KEY,
 )
 
 
 def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, Any]:
     """Check the keys; return ``{a, R, h, n_rings, grading, E, nu, rho, inplane_inertia, penalty,
-    quadrature_degree}`` with defaults filled in (:data:`DEFAULTS`)."""
+    quadrature_degree, boundary}`` with defaults filled in (:data:`DEFAULTS`; ``boundary``: a list of
+    :class:`stepnf.boundary.BoundaryCondition`, empty for the free edge)."""
     f = scene_file
     c = MODEL_KEYS.check(config, file=f, where="model", reserved=("solver",))
     out = {k: c.get(k, DEFAULTS[k]) for k in ("inplane_inertia", "penalty", "degree")}
@@ -71,5 +84,5 @@ def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, A
     geo = c["geometry"]
     a, R, h = cap_keys.cap_dimensions(geo, f, what="a shallow shell")
     out.update(a=a, R=R, h=h, n_rings=geo.get("n_rings", DEFAULTS["n_rings"]),
-               grading=geo.get("grading", DEFAULTS["grading"]))
+               grading=geo.get("grading", DEFAULTS["grading"]), boundary=boundary_conditions(c.get("boundary"), f))
     return out

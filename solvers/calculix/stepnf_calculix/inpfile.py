@@ -1,0 +1,318 @@
+"""Reading Abaqus/CalculiX ``.inp`` text: lines through ``*INCLUDE``, keyword blocks, nodes, elements, sets.
+
+Shared by the two routes of a user's CalculiX input: a mesh (:mod:`.inpmesh`,
+``mesh = "part.inp"``) and a whole deck (:mod:`.userdeck`, ``deck = "model.inp"``).
+
+* :func:`inp_lines` yields every meaningful line (comments ``**`` and blank
+  lines skipped) with its file and line number, following ``*INCLUDE,
+  INPUT=...`` where it stands. A relative ``INPUT`` is relative to the folder
+  of the top file (ccx runs in the deck's folder and opens every include from
+  there, nested ones too); a missing file and an include cycle are errors
+  naming the ``*INCLUDE`` line.
+* :func:`keyword_blocks` groups them into :class:`Block` s: a keyword line
+  (name upper-cased, blanks collapsed: ``*Solid  section`` is ``SOLID
+  SECTION``; options ``{NAME: value}`` with upper-case names) and its data lines.
+* :class:`InpModel` collects ``*NODE``, ``*ELEMENT`` (3D solid types only),
+  ``*NSET`` and ``*ELSET`` (ids, names of sets defined before, ``GENERATE``
+  ranges) and gives the mesh (:meth:`InpModel.mesh`): the nodes some element
+  uses, sorted by id, and the named node sets (``*NSET`` s, and the nodes of
+  ``*ELSET`` s without an ``*NSET`` of the same name; names are upper-case and
+  looked up case-insensitively, as ccx does).
+
+Every error is a :class:`~stepnf.errors.MeshError` (a SceneError, exit code 2)
+naming the top file and the line (``line 3 of sub.inp, included at line 5``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator, NamedTuple
+
+import numpy as np
+
+from stepnf.errors import MeshError
+from stepnf.geometry.checks import check_volume_mesh
+
+#: Solid element types accepted, with their number of nodes.
+SOLID_TYPES = {"C3D4": 4, "C3D6": 6, "C3D8": 8, "C3D8R": 8, "C3D10": 10, "C3D15": 15, "C3D20": 20, "C3D20R": 20}
+#: ccx solid element type -> meshio/VTK cell type of the same node order (for the mesh checks).
+MESHIO_TYPES = {"C3D4": "tetra", "C3D6": "wedge", "C3D8": "hexahedron", "C3D8R": "hexahedron",
+                "C3D10": "tetra10", "C3D15": "wedge15", "C3D20": "hexahedron20", "C3D20R": "hexahedron20"}
+#: Solid types refused, and why.
+REFUSED_TYPES = {"C3D8I": "ccx adds internal incompatible-mode dofs to each C3D8I element, which stepnf can "
+                          "neither prescribe nor expose (use C3D8 or C3D20)"}
+
+
+@dataclass(frozen=True)
+class Source:
+    """A file read, and the ``*INCLUDE`` line that brought it in (``None`` for the top file)."""
+
+    path: Path
+    via: tuple["Source", int] | None = None
+
+
+class Line(NamedTuple):
+    source: Source
+    lineno: int
+    text: str
+
+
+def where(line: Line) -> str:
+    """``line 12`` of the top file, or ``line 3 of sub.inp (included at line 5)`` (and ``of mid.inp`` for
+    deeper includes: ``line 3 of c.inp (included at line 2 of b.inp, included at line 5)``)."""
+    src = line.source
+    if src.via is None:
+        return f"line {line.lineno}"
+    chain = []
+    while src.via is not None:
+        parent, at = src.via
+        chain.append(f"included at line {at}" + (f" of {parent.path}" if parent.via is not None else ""))
+        src = parent
+    return f"line {line.lineno} of {line.source.path} ({', '.join(chain)})"
+
+
+class InpError(MeshError):
+    """An ``.inp`` file stepnf cannot take: the top file, the line and what is wrong (exit code 2)."""
+
+    def __init__(self, top: Path, line: Line | None, message: str):
+        super().__init__(top, f"{where(line)}: {message}" if line is not None else message)
+
+
+def parse_keyword(text: str) -> tuple[str, dict[str, str]]:
+    """``("SOLID SECTION", {"ELSET": "E1", "MATERIAL": "STEEL"})`` of a keyword line."""
+    parts = [p.strip() for p in text[1:].split(",")]
+    opts = {}
+    for p in parts[1:]:
+        if p:
+            k, _, v = p.partition("=")
+            opts[" ".join(k.upper().split())] = v.strip()
+    return " ".join(parts[0].upper().split()), opts
+
+
+def inp_lines(top: Path) -> Iterator[Line]:
+    """Every meaningful line of ``top`` and of the files it includes, in reading order."""
+    top = Path(top)
+
+    def walk(src: Source, stack: tuple[Path, ...]) -> Iterator[Line]:
+        try:
+            text = src.path.read_text(errors="replace")
+        except OSError as exc:
+            raise InpError(top, None, f"cannot read {src.path}: {exc}") from None
+        for lineno, raw in enumerate(text.splitlines(), 1):
+            s = raw.strip()
+            if not s or s.startswith("**"):
+                continue
+            line = Line(src, lineno, s)
+            if s.startswith("*") and parse_keyword(s)[0] == "INCLUDE":
+                inc = parse_keyword(s)[1].get("INPUT", "").strip('"')
+                if not inc:
+                    raise InpError(top, line, "*INCLUDE without INPUT=<file>")
+                path = Path(inc) if Path(inc).is_absolute() else top.parent / inc
+                if not path.is_file():
+                    raise InpError(top, line, f"*INCLUDE, INPUT={inc}: no file {path} (a relative INPUT is "
+                                              f"relative to the folder of {top.name}, where ccx runs)")
+                if path.resolve() in stack:
+                    raise InpError(top, line, f"*INCLUDE, INPUT={inc}: an include cycle ({path.name} includes "
+                                              "itself, directly or through other files)")
+                yield from walk(Source(path, (src, lineno)), stack + (path.resolve(),))
+                continue
+            yield line
+
+    yield from walk(Source(top), (top.resolve(),))
+
+
+@dataclass
+class Block:
+    """A keyword line and its data lines."""
+
+    name: str
+    options: dict[str, str]
+    head: Line
+    data: list[Line] = field(default_factory=list)
+
+
+def keyword_blocks(lines: Iterable[Line]) -> Iterator[Block]:
+    """The keyword blocks of ``lines``; data before the first keyword is ignored (as ccx does)."""
+    block: Block | None = None
+    for line in lines:
+        if line.text.startswith("*"):
+            if block is not None:
+                yield block
+            name, opts = parse_keyword(line.text)
+            block = Block(name, opts, line)
+        elif block is not None:
+            block.data.append(line)
+    if block is not None:
+        yield block
+
+
+def tokens(line: Line) -> list[str]:
+    """The comma-separated fields of a data line (empty fields dropped)."""
+    return [t.strip() for t in line.text.split(",") if t.strip()]
+
+
+class SetNames(dict):
+    """Named sets ``{NAME: indices}`` with case-insensitive look-up (ccx upper-cases names)."""
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and super().__contains__(name.upper())
+
+    def __getitem__(self, name: str):
+        return super().__getitem__(name.upper())
+
+
+@dataclass
+class InpMesh:
+    """Nodes (ids (N,), points (N, 3)), element blocks ``[(ccx type, ids (E,), conn (E, k) node ids)]`` and
+    named node sets ``{NAME: node indices}`` (positions in ``node_ids``)."""
+
+    node_ids: np.ndarray
+    points: np.ndarray
+    blocks: list[tuple[str, np.ndarray, np.ndarray]]
+    node_sets: dict[str, np.ndarray] = field(default_factory=dict)
+    element_sets: dict[str, list[int]] = field(default_factory=dict)
+
+
+class InpModel:
+    """The nodes, solid elements and sets of ``.inp`` blocks (see the module docstring)."""
+
+    def __init__(self, top: Path):
+        self.top = Path(top)
+        self.nodes: dict[int, list[float]] = {}
+        self.elements: dict[str, list[list[int]]] = {}
+        self.element_lines: dict[int, Line] = {}
+        self.nsets: dict[str, list[int]] = {}
+        self.elsets: dict[str, list[int]] = {}
+
+    def error(self, line: Line | None, message: str) -> InpError:
+        return InpError(self.top, line, message)
+
+    def add(self, block: Block) -> bool:
+        """Take ``block`` if it is a ``*NODE``, ``*ELEMENT``, ``*NSET`` or ``*ELSET``; False otherwise."""
+        if block.name == "NODE":
+            self._nodes(block)
+        elif block.name == "ELEMENT":
+            self._elements(block)
+        elif block.name in ("NSET", "ELSET"):
+            self._set(block)
+        else:
+            return False
+        return True
+
+    def _nodes(self, block: Block) -> None:
+        ids = []
+        for line in block.data:
+            v = tokens(line)
+            try:
+                if len(v) < 2:
+                    raise ValueError("no coordinates")
+                nid = int(v[0])
+                xyz = [float(x) for x in v[1:4]]
+            except ValueError as exc:
+                raise self.error(line, f"expected 'node id, x, y, z', got {line.text[:60]!r} ({exc})") from None
+            self.nodes[nid] = xyz + [0.0] * (3 - len(xyz))
+            ids.append(nid)
+        if "NSET" in block.options:
+            self.nsets.setdefault(block.options["NSET"].upper(), []).extend(ids)
+
+    def _elements(self, block: Block) -> None:
+        etype = block.options.get("TYPE", "").upper()
+        if etype in REFUSED_TYPES:
+            raise self.error(block.head, f"element type {etype!r} is not supported: {REFUSED_TYPES[etype]}")
+        if etype not in SOLID_TYPES:
+            raise self.error(block.head, f"element type {etype!r} is not supported (3D solid elements only: no "
+                                         f"shell, beam, truss or spring elements). Pick one of {sorted(SOLID_TYPES)}")
+        rows = self.elements.setdefault(etype, [])
+        ids = []
+        pending: list[Line] = []
+        for line in block.data:
+            pending.append(line)
+            if line.text.endswith(","):
+                continue
+            try:
+                vals = [int(t) for t in " ".join(p.text for p in pending).replace(",", " ").split()]
+            except ValueError as exc:
+                raise self.error(pending[0], f"expected integer element and node ids ({exc})") from None
+            if len(vals) != SOLID_TYPES[etype] + 1:
+                raise self.error(pending[0], f"a {etype} element needs {SOLID_TYPES[etype]} nodes, got "
+                                             f"{len(vals) - 1}")
+            rows.append(vals)
+            ids.append(vals[0])
+            self.element_lines[vals[0]] = pending[0]
+            pending = []
+        if pending:
+            raise self.error(pending[0], "the element's line ends with a comma but no line follows before the next "
+                                         "keyword or the end of the file (a truncated file?)")
+        if "ELSET" in block.options:
+            self.elsets.setdefault(block.options["ELSET"].upper(), []).extend(ids)
+
+    def _set(self, block: Block) -> None:
+        kind = block.name  # NSET or ELSET
+        name = block.options.get(kind, "").upper()
+        if not name:
+            raise self.error(block.head, f"*{kind} without {kind}=<name>")
+        known = self.nsets if kind == "NSET" else self.elsets
+        members = known.setdefault(name, [])
+        what = "node" if kind == "NSET" else "element"
+        for line in block.data:
+            if "GENERATE" in block.options:
+                try:
+                    r = [int(t) for t in tokens(line)]
+                    if len(r) not in (2, 3) or (len(r) == 3 and r[2] <= 0) or r[1] < r[0]:
+                        raise ValueError
+                except ValueError:
+                    raise self.error(line, f"*{kind}, GENERATE: expected 'first, last[, increment]' with first <= "
+                                           f"last and a positive increment, got {line.text[:60]!r}") from None
+                members.extend(range(r[0], r[1] + 1, r[2] if len(r) == 3 else 1))
+                continue
+            for t in tokens(line):
+                try:
+                    members.append(int(t))
+                except ValueError:
+                    if t.upper() not in known:
+                        raise self.error(line, f"*{kind} {name}: {t!r} is neither a {what} number nor a {what} set "
+                                               f"defined before") from None
+                    members.extend(known[t.upper()])
+
+    def mesh(self) -> InpMesh:
+        """The checked mesh (:func:`stepnf.geometry.checks.check_volume_mesh`) and its named node sets."""
+        blocks = {t: rows for t, rows in self.elements.items() if rows}
+        if not blocks:
+            raise self.error(None, f"no elements: no *ELEMENT block of a solid type {sorted(SOLID_TYPES)} with "
+                                   "elements in it")
+        if not self.nodes:
+            raise self.error(None, "no nodes: no *NODE block with nodes in it")
+        out_blocks = []
+        for t, rows in blocks.items():
+            a = np.array(rows, dtype=np.int64)
+            out_blocks.append((t, a[:, 0], a[:, 1:]))
+        used = np.unique(np.concatenate([c.ravel() for _, _, c in out_blocks]))
+        defined = np.array(sorted(self.nodes), dtype=np.int64)
+        missing = np.setdiff1d(used, defined)
+        if missing.size:
+            for t, eids, conn in out_blocks:
+                bad = ~np.isin(conn, defined)
+                if bad.any():
+                    e = int(np.nonzero(bad.any(axis=1))[0][0])
+                    raise self.error(None, f"{t} element {int(eids[e])} uses node {int(conn[e][bad[e]][0])}, which "
+                                           f"no *NODE line defines; {missing.size} undefined node(s), e.g. "
+                                           f"{missing[:5].tolist()}")
+        pts = np.array([self.nodes[int(i)] for i in used], dtype=float)
+        check_volume_mesh(pts, [(MESHIO_TYPES[t], np.searchsorted(used, c)) for t, _, c in out_blocks],
+                          source=self.top, node_ids=used, cell_ids=[e for _, e, _ in out_blocks],
+                          cell_labels=[f"{t} element" for t, _, _ in out_blocks])
+        return InpMesh(used, pts, out_blocks, self.node_sets(used, out_blocks), dict(self.elsets))
+
+    def node_sets(self, used: np.ndarray, blocks: list[tuple[str, np.ndarray, np.ndarray]]) -> SetNames:
+        """``{NAME: positions in used}``: the used nodes of every *NSET, and of the elements of every *ELSET
+        that no *NSET names (ids that are no used node carry no dof and are left out)."""
+        out = SetNames()
+        for name, ids in self.nsets.items():
+            ids = np.asarray(ids, dtype=np.int64)
+            out[name] = np.flatnonzero(np.isin(used, ids))
+        for name, members in self.elsets.items():
+            if name not in out:
+                m = np.asarray(members, dtype=np.int64)
+                nodes = np.concatenate([c[np.isin(e, m)].ravel() for _, e, c in blocks])
+                out[name] = np.flatnonzero(np.isin(used, nodes))
+        return out
