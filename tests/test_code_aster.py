@@ -216,6 +216,9 @@ def test_scene_errors_name_the_key(tmp_path, cfg, key):
 
 
 # ---------------------------------------------------------- boundary conditions (issue 11)
+#: real code_aster files (../shared/fixtures/code_aster/README.md), as the test above finds them
+FIXTURES = Path("/work/shared/fixtures/code_aster")
+
 def test_clamped_edge_round_trip_restricts_to_the_free_dofs(tmp_path, fake_run_aster):
     """[[model.boundary]] set = "edge" on a generated cap: the fake solver's K (whole mesh) and forces
     come back restricted to the free dofs, exactly (the same K with the fixed rows/columns removed)."""
@@ -238,8 +241,7 @@ def test_clamped_edge_round_trip_restricts_to_the_free_dofs(tmp_path, fake_run_a
 
 def test_med_groups_are_node_sets():
     """MED groups of the real code_aster fixtures: node groups and cell groups (their nodes)."""
-    fixtures = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "code_aster"
-    path = fixtures / "zzzz395f_modal_basis.rmed"
+    path = FIXTURES / "zzzz395f_modal_basis.rmed"
     if not path.is_file():
         pytest.skip("code_aster fixtures not present")
     groups = ca.med.read_groups(path)
@@ -251,8 +253,7 @@ def test_med_groups_are_node_sets():
 
 
 def test_unknown_med_group_lists_the_groups(tmp_path):
-    fixtures = Path(__file__).resolve().parents[2] / "shared" / "fixtures" / "code_aster"
-    src = fixtures / "static_solid_cantilever_code_aster.rmed"
+    src = FIXTURES / "static_solid_cantilever_code_aster.rmed"
     if not src.is_file():
         pytest.skip("code_aster fixtures not present")
     mesh = tmp_path / "beam.med"

@@ -7,7 +7,11 @@ class): either a user's mesh file (``mesh``), a solver deck (``deck``, for an
 adapter whose schema declares it: the deck carries its own material), or a
 generated free-edge cap (``[model.geometry]``), with ``[model.material]``
 (:mod:`stepnf.geometry.keys`), for any adapter with the
-:class:`~stepnf.geometry.solid.CapSolid` builders; and the boundary conditions
+:class:`~stepnf.geometry.solid.CapSolid` builders; with a mesh, for an adapter
+whose schema declares :data:`~stepnf.materials.MATERIALS_KEY`, also
+orthotropic materials and one material per named cell set
+(``[model.materials.<set>]``, :mod:`stepnf.materials`), applied by the
+adapter's ``apply_materials``; and the boundary conditions
 of ``[[model.boundary]]`` (:mod:`stepnf.boundary`, for an adapter whose schema
 declares :data:`~stepnf.boundary.BOUNDARY_KEY`), applied by
 :meth:`SolidFromScene.apply_boundary` once the model is built.
@@ -23,6 +27,7 @@ from ..boundary import DOF_NAMES, FreeDofs, boundary_conditions, select_nodes
 from ..errors import SceneError
 from ..geometry import keys as cap_keys
 from ..geometry.checks import units_warning
+from ..materials import ISOTROPIC, materials
 from ..schema import Key, Schema
 from .process import KEEP_POLICIES
 
@@ -31,6 +36,11 @@ from .process import KEEP_POLICIES
 #: and 2^24 MB is 16 TiB.
 RUN_RANGES: dict[str, tuple[float, float]] = {"timeout": (0.0, 1e7), "threads": (1, 1024), "ncpus": (1, 1024),
                                               "parallel_runs": (1, 256), "memory_mb": (1, 2**24)}
+
+
+#: The keys of an isotropic ``[model.material]``: any other (orthotropic constants, axes) asks for
+#: :mod:`stepnf.materials`.
+ISOTROPIC_KEYS = {*ISOTROPIC, "rho"}
 
 
 def _count(name: str, doc: str, default: int) -> Key:
@@ -75,10 +85,18 @@ def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: s
 
     Returns the checked keys with ``material`` a complete ``{E, nu, rho}`` (for a generated cap,
     and for a mesh when ``mesh_needs_material``; else what was given; ``{}`` with a deck, which
-    carries its own and refuses ``[model.material]``) and ``geometry`` replaced by
+    carries its own and refuses ``[model.material]`` and ``[model.materials]``). With a mesh and a
+    schema declaring ``materials``, orthotropic constants or ``[model.materials.<set>]`` tables give
+    ``materials`` (``{None: default, set: Material}``, :func:`stepnf.materials.materials`) and
+    ``material`` the default's ``{E, nu, rho}`` when isotropic (else ``{}``); other adapters and
+    generated caps take one isotropic material. ``geometry`` is replaced by
     :func:`stepnf.geometry.keys.cap_geometry`'s ``{shape, a, R, h, resolution}``. The
     ``[[model.boundary]]`` tables are checked (one of ``set`` and ``box`` each) and kept as given.
     """
+    if "materials" in config and "materials" not in schema:
+        raise SceneError(scene_file, "model.materials", "this adapter takes one isotropic [model.material] (E, nu, "
+                         "rho) on every element; [model.materials] regions and orthotropic constants are taken by "
+                         "the fenicsx and calculix adapters")
     c = schema.check(config, file=scene_file, where="model", base_dir=base_dir, reserved=("solver",))
     sources = [k for k in ("mesh", "deck", "geometry") if k in c]
     if len(sources) != 1:
@@ -86,11 +104,20 @@ def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: s
         raise SceneError(scene_file, "model", f'give exactly one of mesh = "<file>"{deck} or a [model.geometry] '
                          "table" + (f" (got {' and '.join(sources)})" if sources else ""))
     if "deck" in c:
-        if "material" in c:
-            raise SceneError(scene_file, "model.material", f"the deck {c['deck']} carries its own *MATERIAL "
-                             "blocks: remove [model.material] (or give the mesh with mesh = instead of deck =)")
+        for key in ("material", "materials"):
+            if key in c:
+                raise SceneError(scene_file, f"model.{key}", f"the deck {c['deck']} carries its own *MATERIAL "
+                                 f"blocks: remove [model.{key}] (or give the mesh with mesh = instead of deck =)")
         c["material"] = {}
+    elif "mesh" in c and "materials" in schema and ("materials" in c or set(c.get("material", {})) - ISOTROPIC_KEYS):
+        c["materials"] = materials(config, scene_file)  # the tables as written (checked again there)
+        default = c["materials"].get(None)
+        c["material"] = dict(default.constants) if default is not None and default.isotropic else {}
     else:
+        if "materials" in c:
+            raise SceneError(scene_file, "model.materials", "a generated cap has no named cell sets: one "
+                             "[model.material] applies to it (regions need a user's mesh with cell sets)")
+        _isotropic_only(c, scene_file, "materials" in schema)
         c["material"] = cap_keys.material(c, scene_file, required="geometry" in c or mesh_needs_material)
     if "geometry" in c:
         c["geometry"] = cap_keys.cap_geometry(c, scene_file)
@@ -98,19 +125,36 @@ def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: s
     return c
 
 
+def _isotropic_only(c: Mapping[str, Any], scene_file: str | Path | None, orthotropic_with_mesh: bool) -> None:
+    """A SceneError for orthotropic constants where one isotropic material is taken."""
+    extra = sorted(set(c.get("material", {})) - set(cap_keys.MATERIAL_KEYS))
+    if extra:
+        why = ("a generated cap takes an isotropic material (E, nu, rho; orthotropic constants need a user's mesh)"
+               if orthotropic_with_mesh else "this adapter takes one isotropic material (E, nu, rho) on every "
+               "element; orthotropic constants and [model.materials] regions are taken by the fenicsx and calculix "
+               "adapters")
+        raise SceneError(scene_file, f"model.material.{extra[0]}", why)
+
+
 def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[..., Any],
                 scene_file: str | Path | None) -> Any:
     """The adapter ``cls`` for :func:`check_solid_config`'s keys: ``read_mesh(path, material=..., **run)``
     for a user's mesh, ``cls.from_deck_file(path, **run)`` for a deck, ``cls.from_cap`` for a
-    generated cap; every other key is passed on as a run setting. Then the ``[[model.boundary]]``
+    generated cap; every other key is passed on as a run setting, and ``materials`` (when
+    :func:`check_solid_config` gives it) to ``read_mesh``. Then the ``[[model.boundary]]``
     conditions (:meth:`SolidFromScene.apply_boundary`). Warns when the material's units and the
     mesh's sizes disagree; a model the adapter refuses (a ValueError) is a SceneError on ``[model]``."""
-    run = {k: v for k, v in checked.items() if k not in ("element", "mesh", "deck", "geometry", "material", "boundary")}
+    model_data = ("element", "mesh", "deck", "geometry", "material", "materials", "boundary")
+    run = {k: v for k, v in checked.items() if k not in model_data}
     material = checked["material"]
     conditions = boundary_conditions(checked.get("boundary"), scene_file)
     try:
         if "mesh" in checked:
-            adapter = read_mesh(checked["mesh"], material=material, **run)
+            mats = checked.get("materials")
+            if mats:
+                run["materials"] = mats
+                material = {"rho": next(iter(mats.values())).rho}
+            adapter = read_mesh(checked["mesh"], material=checked["material"], **run)
             units_warning(adapter.points, material, source=checked["mesh"])
         elif "deck" in checked:
             adapter = cls.from_deck_file(checked["deck"], **run)
@@ -121,7 +165,9 @@ def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[...
         if conditions:
             adapter.apply_boundary(conditions, scene_file=scene_file, mesh=checked.get("mesh") or checked.get("deck"))
         return adapter
-    except SceneError:
+    except SceneError as exc:
+        if exc.file is None and scene_file is not None:  # raised by the adapter, which knows no scene file
+            raise SceneError(scene_file, exc.key, exc.message) from None
         raise
     except ValueError as exc:
         raise SceneError(scene_file, "model", str(exc)) from exc

@@ -15,6 +15,8 @@ import math
 from typing import Any, Mapping
 
 from ..errors import SceneError
+from ..materials import MATERIAL as ANY_MATERIAL
+from ..materials import MATERIAL_RANGE
 from ..schema import Key, Schema
 from .cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
 
@@ -27,9 +29,6 @@ GEOMETRY_KEYS = ("shape", "a", "R", "h") + RESOLUTION_KEYS
 #: micrometres; the assembled stiffness holds up to the fourth power of lengths times E, which must
 #: stay far inside float range.
 LENGTH_RANGE = (1e-12, 1e12)
-#: E and rho in any consistent units (E: 1e3 Pa for a gel to 1e12 Pa for diamond; rho: 8e-9 t/mm^3
-#: in the mm-t-s system to 2e4 kg/m^3): 1e-20 .. 1e20 keeps their products with lengths finite.
-MATERIAL_RANGE = (1e-20, 1e20)
 #: Thinnest cap: h >= a / 1000. Then kappa = a^4/(R^2 h^2) <= (a/h)^2 <= 1e6 (R >= a), the range of
 #: the von Karman model (:data:`stepnf.models.vonkarman.RANGES`); thinner solids lock and no mesh
 #: of a few million dofs resolves them.
@@ -76,7 +75,8 @@ CAP_GEOMETRY = Schema(Key("shape", "choice", "the generated shape", default="sph
                       *CAP_DIMENSIONS, *CAP_RESOLUTION)
 #: The ``material`` and ``geometry`` tables of a cap adapter's ``[model]``.
 CAP_TABLES = Schema(
-    Key("material", "table", "the material (every element)", table=MATERIAL),
+    Key("material", "table", "the material of every cell (isotropic E, nu, rho; with a mesh also orthotropic: "
+        "stepnf.materials)", table=ANY_MATERIAL),
     Key("geometry", "table", "a generated cap, free-edged unless [[model.boundary]] holds its \"edge\" set (or, "
         "beside a mesh, its a, R, h)", table=CAP_GEOMETRY),
 )
@@ -84,7 +84,12 @@ CAP_TABLES = Schema(
 
 def material(config: Mapping[str, Any], scene_file, *, required: bool = True) -> dict[str, float]:
     """``[model.material]`` checked: E > 0, -1 < nu < 0.5, rho > 0 (all three when ``required``)."""
-    out = MATERIAL.check(config.get("material", {}), file=scene_file, where="model.material")
+    out = ANY_MATERIAL.check(config.get("material", {}), file=scene_file, where="model.material")
+    ortho = sorted(set(out) - set(MATERIAL_KEYS))
+    if ortho:
+        raise SceneError(scene_file, f"model.material.{ortho[0]}", "this model needs an isotropic material (E, nu, "
+                         "rho: a generated cap's shell scales, the shell model); orthotropic constants are taken "
+                         "with a user's mesh")
     missing = [k for k in MATERIAL_KEYS if k not in out]
     if required and missing:
         raise SceneError(scene_file, f"model.material.{missing[0]}",

@@ -37,7 +37,23 @@ Scene keys (``[model]``)::
 or, instead of ``[model.geometry]``, ``mesh = "part.inp"`` (a user's solid
 mesh: ``*NODE`` and ``*ELEMENT`` blocks of C3D* elements, ``*NSET`` and
 ``*ELSET`` sets; the material of ``[model.material]`` applies to every
-element), or ``deck = "model.inp"`` (a user's whole CalculiX model: nodes,
+element but those of the named element sets given their own, isotropic or
+orthotropic, :mod:`stepnf.materials`)::
+
+    [model.material]               # every element not in a set below; isotropic, or
+    E1 = 1.3e11                    # orthotropic: E1 E2 E3 nu12 nu13 nu23 G12 G13 G23
+    ...
+    rho = 1600.0
+    axes = [[1, 1, 0], [-1, 1, 0]] # optional: material axes 1 and 2 (*ORIENTATION)
+    [model.materials.CORE]         # the elements of the *ELSET CORE
+    E = 2.1e11
+    nu = 0.3
+    rho = 7800.0
+
+(written as one ``*MATERIAL`` per material and one ``*SOLID SECTION`` per
+element set, :mod:`.sections`; an element in two of the sets, in none without
+``[model.material]``, or a set the mesh lacks is refused naming the key),
+or ``deck = "model.inp"`` (a user's whole CalculiX model: nodes,
 elements, sets, ``*MATERIAL`` blocks, ``*SOLID SECTION`` s, ``*ORIENTATION`` s
 and zero ``*BOUNDARY`` lines kept as written, its ``*STEP`` blocks replaced by
 stepnf's; no ``[model.material]``; what stepnf cannot honour is refused with
@@ -57,7 +73,9 @@ unconstrained model and the free rows and columns are kept, which is exact
 (see :class:`CalculixAdapter`). Optional run keys:
 ``template = "my_job.inp"`` (a job template with the placeholders
 ``${mesh_file}``, ``${steps}`` and, if it uses them, ``${E}``, ``${nu}``,
-``${rho}``, ``${title}``; the shipped one is ``templates/job.inp``),
+``${rho}`` (one isotropic material), ``${materials}`` (the blocks stepnf
+writes: needed for regions or orthotropic constants), ``${title}``; the
+shipped ones are ``templates/job.inp`` and ``templates/materials_job.inp``),
 ``executable = "ccx"``, ``timeout = 3600`` (s per run), ``workdir = "runs"``
 (parent of the work folders, default the system temp folder), ``keep =
 "on_error"`` (or ``"never"``, ``"always"``), ``threads`` (``OMP_NUM_THREADS``),

@@ -17,10 +17,12 @@ from stepnf.external import (EXECUTABLE, RUN_KEYS, CommandTemplate, ExternalSolv
 from stepnf.external.keys import THREADS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
+from stepnf.materials import MATERIALS_KEY, Material
 from stepnf.schema import Key, Schema
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
 from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
+from .sections import Section, assign_sections, is_plain, isotropic_section, materials_text
 
 ELEMENTS = ("hex20",)
 #: Scene keys of ``[model]`` (besides ``solver``; ``stepnf solvers --keys calculix``).
@@ -30,9 +32,11 @@ MODEL_KEYS = Schema(
     Key("deck", "file", "a user's whole CalculiX model (nodes, elements, sets, materials, sections, *BOUNDARY; its "
         "steps are replaced by stepnf's) instead of mesh or [model.geometry]", suffixes=(".inp",),
         what="a CalculiX deck file name"),
+    MATERIALS_KEY,
     BOUNDARY_KEY,
-    Key("template", "file", "a job template with ${mesh_file}, ${steps} (and ${E}, ${nu}, ${rho}, ${title} if "
-        "used) instead of the shipped templates/job.inp (not with deck)", what="a job template file name"),
+    Key("template", "file", "a job template with ${mesh_file}, ${steps} (and ${materials}, ${E}, ${nu}, ${rho}, "
+        "${title} if used; ${materials} for [model.materials] or orthotropic constants) instead of the shipped "
+        "templates/job.inp or materials_job.inp (not with deck)", what="a job template file name"),
     EXECUTABLE, THREADS, *RUN_KEYS,
 )
 #: Largest number of ``*BOUNDARY`` lines (fields x dofs) in one deck; bigger batches are split over runs.
@@ -67,7 +71,12 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     node_ids : (N,) CalculiX node numbers
     points : (N, 3) coordinates (model length unit)
     blocks : ``[(ccx element type, element ids (E,), connectivity (E, k) in node ids, ccx order)]``
-    material : ``{"E", "nu", "rho"}`` (needed by the shipped template)
+    material : ``{"E", "nu", "rho"}``: one isotropic material on every element (the shipped template needs a
+        material: this one or ``materials``)
+    materials : ``{None: default, element set name: Material}`` (:func:`stepnf.materials.materials`): a material
+        per named ``*ELSET`` of ``element_sets``, isotropic or orthotropic (:meth:`apply_materials`)
+    element_sets : the mesh's named element sets ``{NAME: element ids}`` (for ``materials``)
+    source : the mesh file read (named in messages)
     template : a user's job template (path) instead of the shipped ``job.inp``
     geometry : ``{"shape", "a", "R", "h"}`` for a generated cap (scales, Gamma)
     midsurface : (N,) bool, nodes on the mid-surface (for :meth:`transverse_amplitude`)
@@ -96,6 +105,9 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         blocks: Sequence[tuple[str, np.ndarray, np.ndarray]],
         *,
         material: Mapping[str, float] | None = None,
+        materials: Mapping[str | None, Material] | None = None,
+        element_sets: Mapping[str, Sequence[int]] | None = None,
+        source: str | Path | None = None,
         template: str | Path | None = None,
         geometry: Mapping[str, Any] | None = None,
         midsurface: np.ndarray | None = None,
@@ -109,19 +121,19 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self.points = np.asarray(points, dtype=float)
         self.blocks = [(t, np.asarray(e, np.int64), np.asarray(c, np.int64)) for t, e, c in blocks]
         self.material = dict(material or {})
+        self.element_sets = element_sets if element_sets is not None else {}
+        #: the materials on the elements (``${materials}``); ``None``: the template carries its own
+        self.sections: list[Section] | None = None
+        if deck is None and all(k in self.material for k in MATERIAL_KEYS):
+            self.sections = [isotropic_section(self.material)]
         self.deck = deck
         if deck is not None and template is not None:
             raise ValueError("a deck carries its own model data: give no job template with it")
+        self.user_template = template is not None
         default_job = "job.inp" if deck is None else "deck_job.inp"
         self.job_template = CommandTemplate.from_file(template) if template else shipped_template(default_job)
         self.step_template = shipped_template("force_step.inp")
         self.matrix_template = shipped_template("matrix_step.inp")
-        for key in ("mesh_file", "steps"):
-            if key not in self.job_template.placeholders:
-                raise ValueError(f"{self.job_template.source}: the job template needs the placeholder ${{{key}}}")
-        need = [k for k in MATERIAL_KEYS if k in self.job_template.placeholders and k not in self.material]
-        if need:
-            raise ValueError(f"{self.job_template.source} uses material constants {need}; give them in [model.material]")
         self.geometry = dict(geometry or {})
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
         self.node_sets = node_sets if node_sets is not None else {}
@@ -140,6 +152,52 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self._K: sp.csr_matrix | None = None
         self._M: sp.csr_matrix | None = None
         self.timings: dict[str, float] = {}
+        if materials:
+            self.apply_materials(materials, mesh=source)
+        self._check_template()
+
+    def _check_template(self) -> None:
+        """The job template's placeholders against what this model gives (a ValueError naming the template)."""
+        have = self.job_template.placeholders
+        for key in ("mesh_file", "steps"):
+            if key not in have:
+                raise ValueError(f"{self.job_template.source}: the job template needs the placeholder ${{{key}}}")
+        if "materials" in have and self.sections is None:
+            raise ValueError(f"{self.job_template.source} writes the scene's materials (${{materials}}); give "
+                             "[model.material] (E, nu, rho, or orthotropic constants) or [model.materials.<set>]")
+        need = [k for k in MATERIAL_KEYS if k in have and k not in self.material]
+        if need:
+            raise ValueError(f"{self.job_template.source} uses material constants {need}; give them in an isotropic "
+                             "[model.material]")
+
+    def apply_materials(self, materials: Mapping[str | None, Material], *, scene_file: str | Path | None = None,
+                        mesh: str | Path | None = None) -> None:
+        """Give every element the material of the named ``*ELSET`` it lies in, the default (key ``None``)
+        when none (:func:`.sections.assign_sections`: SceneErrors naming the key). The shipped template is
+        ``job.inp`` for one isotropic material on every element (its ``${E} ${nu} ${rho}``: the deck as it
+        always was), else ``materials_job.inp`` (``${materials}``); a user's template needs ``${materials}``
+        for regions or orthotropic constants."""
+        if self.deck is not None:
+            raise SceneError(scene_file, "model.materials", f"the deck {self.deck.path} carries its own *MATERIAL "
+                             "blocks: remove [model.material] and [model.materials]")
+        if self._K is not None:
+            raise RuntimeError("apply_materials after K was built")
+        ids = np.concatenate([e for _, e, _ in self.blocks])
+        sections = assign_sections(ids, self.element_sets, materials, scene_file=scene_file, mesh=mesh)
+        if not self.user_template:
+            self.job_template = shipped_template("job.inp" if is_plain(sections) else "materials_job.inp")
+        elif not is_plain(sections) and "materials" not in self.job_template.placeholders:
+            asked = "[model.materials] regions" if len(sections) > 1 or sections[0].elements is not None else \
+                "orthotropic constants"
+            raise SceneError(scene_file, "model.template", f"the job template {self.job_template.source} has no "
+                             f"${{materials}} placeholder, so it cannot hold the {asked} of the scene: put a line "
+                             "${materials} where its *MATERIAL and *SOLID SECTION blocks stand (stepnf writes them "
+                             "there), or give one isotropic [model.material] (its ${E}, ${nu}, ${rho})")
+        self.sections = sections
+        default = materials.get(None)
+        self.material = ({k: float(default.constants[k]) for k in MATERIAL_KEYS}
+                         if default is not None and default.isotropic else {})
+        self._check_template()
 
     @property
     def n_full(self) -> int:
@@ -169,7 +227,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         from .inpmesh import read_inp_mesh
 
         m = read_inp_mesh(path)
-        return cls(m.node_ids, m.points, m.blocks, node_sets=m.node_sets, **kw)
+        return cls(m.node_ids, m.points, m.blocks, node_sets=m.node_sets, element_sets=m.element_sets, source=path,
+                   **kw)
 
     from_mesh_file = from_inp  # the ``mesh`` key (SolidFromScene)
 
@@ -203,6 +262,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                                               for k, v in self.geometry.items()},
             force_precision="7 significant digits (.dat)", solver_runs=len(self.runs),
         )
+        if self.sections is not None and not is_plain(self.sections):
+            d["materials"] = [s.describe() for s in self.sections]
         if self.deck is not None:
             d["deck"] = self.deck.summary
         if self.free_dofs is not None:
@@ -217,6 +278,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def _write_job(self, workdir: Path, job: str, steps: str, title: str) -> list[str]:
         (workdir / "mesh.inp").write_text(self._mesh)
         values = {"title": title, "mesh_file": "mesh.inp", "steps": steps}
+        if self.sections is not None:
+            values["materials"] = materials_text(self.sections)
         values.update({k: REAL % float(v) for k, v in self.material.items() if k in MATERIAL_KEYS})
         (workdir / f"{job}.inp").write_text(self.job_template.render(values))
         return [self.executable, "-i", job]

@@ -3,10 +3,10 @@
 Only the mesh and its named sets are taken: every ``*NODE`` line, every
 ``*ELEMENT`` block of a solid element type (``C3D*``), and the ``*NSET`` and
 ``*ELSET`` sets (for ``[[model.boundary]] set = "..."``: an ``*ELSET`` names
-the nodes of its elements); materials, sections, boundary conditions and steps
-in the file are ignored (stepnf writes its own, with the scene's material
-applied to all elements; a whole model is read with ``deck =`` instead,
-:mod:`.userdeck`). ``*INCLUDE`` is followed (relative to the file's folder).
+the nodes of its elements; for ``[model.materials.<set>]``: its elements);
+materials, sections, boundary conditions and steps in the file are ignored
+(stepnf writes its own from the scene's materials, :mod:`.sections`; a whole
+model is read with ``deck =`` instead, :mod:`.userdeck`). ``*INCLUDE`` is followed (relative to the file's folder).
 Continuation lines of ``*ELEMENT`` (a line ending with a comma) are joined.
 Nodes that no element uses are dropped (they would carry no stiffness).
 """

@@ -86,6 +86,27 @@ def vector_space(msh, degree: int):
         return fem.VectorFunctionSpace(msh, ("Lagrange", degree))
 
 
+def cell_function(msh, values: np.ndarray):
+    """A piecewise-constant (DG0) function: on each cell of this process, ``values[row]`` with ``row`` the
+    cell's row in the input cells of :func:`create_mesh` (``topology.original_cell_index``);
+    ``values`` (input cells,) or (input cells, *shape) (a scalar or tensor field)."""
+    from dolfinx import fem
+
+    values = np.asarray(values, dtype=float)
+    shape = values.shape[1:]
+    with quiet_jit():
+        W = fem.TensorFunctionSpace(msh, ("DG", 0), shape=shape) if shape else fem.FunctionSpace(msh, ("DG", 0))
+    fn = fem.Function(W)
+    im = msh.topology.index_map(msh.topology.dim)
+    n = im.size_local + im.num_ghosts
+    rows = np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:n]
+    dofs = np.asarray(W.dofmap.list.array, dtype=np.int64).reshape(n, -1)[:, 0]
+    bs = int(W.dofmap.index_map_bs)
+    fn.x.array.reshape(-1, bs)[dofs] = values[rows].reshape(n, bs)
+    fn.x.scatter_forward()
+    return fn
+
+
 @contextlib.contextmanager
 def quiet_jit():
     """No INFO lines from the just-in-time C compiler ("running build_ext", the gcc command lines).

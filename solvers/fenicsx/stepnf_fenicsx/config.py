@@ -16,10 +16,13 @@
     n_ring = 5
     n_thick = 1
     core = 0.5                   # half-width of the square core, fraction of a
-    [model.material]
+    [model.material]             # every cell (with mesh: those no [model.materials.<set>] names)
     E = 1.04e11
     nu = 0.3
     rho = 4400.0
+    [model.materials.CORE]       # with mesh, optional: the cells of the mesh's cell set CORE
+    E1 = 1.3e11                  # isotropic (E, nu) or orthotropic (E1 E2 E3 nu12 nu13 nu23 G12 G13 G23)
+    ...                          # constants, rho, optional axes (stepnf.materials)
     [[model.boundary]]           # optional, repeated: zero displacements (stepnf.boundary)
     set = "edge"                 # a named node set: "edge" on a generated cap, the file's sets with mesh
     dofs = ["ux", "uy", "uz"]    # optional (default: clamped)
@@ -30,6 +33,15 @@ cell sets, Gmsh physical groups and MED groups meshio reads), or ``box =
 [[x0, y0, z0], [x1, y1, z1]]`` selects the nodes inside; the dofs they fix
 are removed (:mod:`stepnf_fenicsx.constraints`). Sets and boxes are resolved
 when the model is built (the mesh is read then).
+
+Materials: a generated cap takes one isotropic ``[model.material]`` (its
+shell scales need E and nu). With ``mesh``, ``[model.material]`` may be
+orthotropic (the nine engineering constants, ``rho``, optional material
+``axes``) and ``[model.materials.<set>]`` gives the cells of a named cell set
+of the mesh (an ``*ELSET``, a Gmsh physical group of volume cells, a meshio
+cell set, a MED group of cells) their own material
+(:mod:`stepnf_fenicsx.regions`); ``[model.material]`` is then needed only for
+the cells no set names. Every material is St Venant-Kirchhoff (``S = C : E``).
 
 With ``mesh``, ``[model.geometry]`` may still give ``a``, ``R``, ``h``
 (without ``shape``) so that shell scales, Gamma and mode labels are
@@ -51,6 +63,7 @@ from typing import Any, Mapping
 from stepnf.boundary import BOUNDARY_KEY, boundary_conditions
 from stepnf.errors import SceneError
 from stepnf.geometry import keys as cap_keys
+from stepnf.materials import MATERIALS_KEY, materials
 from stepnf.schema import Key, Schema
 
 ELEMENTS = ("hex27", "tet10")
@@ -65,20 +78,32 @@ MODEL_KEYS = Schema(
     # 12: exact for every element used
     Key("quadrature_degree", "integer", "quadrature degree of the forms", default=4, lo=2, hi=12),
     *cap_keys.CAP_TABLES,
+    MATERIALS_KEY,
     BOUNDARY_KEY,
 )
 
 
 def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -> dict[str, Any]:
-    """Check the keys and return ``{element, material, geometry (or None), mesh (Path or None), quadrature_degree,
-    boundary}`` (``boundary``: a list of :class:`stepnf.boundary.BoundaryCondition`, empty when none)."""
+    """Check the keys and return ``{element, material, materials, geometry (or None), mesh (Path or None),
+    quadrature_degree, boundary}``: ``material`` the constants of ``[model.material]`` (a generated cap's E,
+    nu, rho; ``None`` when a mesh's cell sets carry every material), ``materials`` (with a mesh)
+    :func:`stepnf.materials.materials` ``{None: default, set: Material}``, ``boundary`` a list of
+    :class:`stepnf.boundary.BoundaryCondition` (empty when none)."""
     f = scene_file
     c = MODEL_KEYS.check(config, file=f, where="model", base_dir=base_dir, reserved=("solver",))
-    if "material" not in c:
-        raise SceneError(f, "model.material", f"missing table; a material needs {list(cap_keys.MATERIAL_KEYS)}")
-    mat = cap_keys.material(c, f)  # all three constants
     geo = c.get("geometry", {})
     mesh = c.get("mesh")
+    if "material" not in c and (mesh is None or not c.get("materials")):
+        raise SceneError(f, "model.material", f"missing table; a material needs {list(cap_keys.MATERIAL_KEYS)}"
+                         + (" (or, with a mesh, [model.materials.<set>] for its cell sets)" if mesh else ""))
+    if mesh is None and c.get("materials"):
+        raise SceneError(f, "model.materials", "a generated geometry has no cell sets: give one isotropic "
+                         "[model.material] (materials per cell set need model.mesh)")
+    if mesh is None:
+        mat, by_set = cap_keys.material(c, f), {}  # all three constants, isotropic
+    else:
+        by_set = materials(config, f)  # from the tables as written (the checked axes are tuples)
+        mat = dict(by_set[None].constants) if None in by_set else None
     if mesh is not None:
         if "shape" in geo or any(k in geo for k in cap_keys.RESOLUTION_KEYS):
             raise SceneError(f, "model.geometry", "give either model.mesh or a generated geometry "
@@ -98,6 +123,6 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
         a, R, h = cap_keys.cap_dimensions(geo, f, what="the shell scaling (kappa, Gamma)")
         geometry = {"a": a, "R": R, "h": h}
         geometry.update(cap_keys.cap_resolution(geo, f))  # the mesh-size limit of every cap
-    return {"element": c.get("element", "hex27"), "material": mat, "geometry": geometry,
+    return {"element": c.get("element", "hex27"), "material": mat, "materials": by_set, "geometry": geometry,
             "mesh": mesh, "quadrature_degree": c.get("quadrature_degree", 4),
             "boundary": boundary_conditions(c.get("boundary"), f)}

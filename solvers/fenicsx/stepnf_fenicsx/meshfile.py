@@ -1,16 +1,19 @@
-"""A user's mesh file for the ``fenicsx`` adapter: its volume cells and its named node sets, through meshio.
+"""A user's mesh file for the ``fenicsx`` adapter: its volume cells, named node sets and cell sets, through meshio.
 
 :func:`read_mesh` keeps the volume cells of one type dolfinx can use
 (``hexahedron27``, ``tetra10``, ``hexahedron``, ``tetra``) or serendipity
 ``hexahedron20`` (a CalculiX ``C3D20`` mesh), which :func:`hex20_to_hex27`
 completes into quadratic hexahedra, so that the same mesh file serves both
 solvers. :func:`read_node_sets` gives the named node sets boundary conditions
-refer to (:mod:`stepnf.boundary`). Units: those of the file.
+refer to (:mod:`stepnf.boundary`), :func:`read_cell_sets` the named sets of
+volume cells ``[model.materials.<set>]`` refer to (:mod:`stepnf_fenicsx.regions`).
+Units: those of the file.
 """
 from __future__ import annotations
 
 import contextlib
 import io
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterator, Mapping
 
@@ -35,11 +38,12 @@ def cell_dimension(cell_type: str) -> int | None:
     return next((d for p, d in _DIMS if cell_type.startswith(p)), None)
 
 
-def read_mesh(path: str | Path) -> VolumeMesh:
+def read_mesh(path: str | Path) -> "MeshFile":
     """Read the volume cells of any file meshio reads (one supported cell type) and its named node sets.
 
     ``node_sets``: :func:`read_node_sets` (point sets, cell sets, Gmsh physical groups, MED groups),
-    numbered like the returned points. Every defect :func:`stepnf.geometry.checks.check_volume_mesh`
+    numbered like the returned points; ``cell_sets``: :func:`read_cell_sets`, the named sets of its
+    volume cells, numbered like the returned cells. Every defect :func:`stepnf.geometry.checks.check_volume_mesh`
     knows (no cells, NaN coordinates, dangling node numbers, flat meshes, coincident nodes,
     degenerate, tangled or overlapping cells) is a :class:`~stepnf.errors.MeshError` naming the file
     and the cell or node (0-based positions in the file, cells counted within their type).
@@ -71,62 +75,86 @@ def read_mesh(path: str | Path) -> VolumeMesh:
     used = np.unique(cells)
     renum = np.full(len(pts), -1)
     renum[used] = np.arange(len(used))
-    mesh = VolumeMesh(points=np.asarray(pts, dtype=float)[used], cells=renum[cells], cell_type=kinds[0],
-                      info={"file": str(path)}, node_sets=read_node_sets(m, renum))
+    mesh = MeshFile(points=np.asarray(pts, dtype=float)[used], cells=renum[cells], cell_type=kinds[0],
+                    info={"file": str(path)}, node_sets=read_node_sets(m, renum), cell_sets=read_cell_sets(m, kinds[0]))
     return hex20_to_hex27(mesh) if mesh.cell_type == "hexahedron20" else mesh
+
+
+def named_cells(m: Any) -> Iterator[tuple[str, int, np.ndarray]]:
+    """``(name, block, positions)`` of every named group of cells of a meshio mesh: meshio cell sets (an
+    Abaqus ``*ELSET``...), Gmsh physical groups (``gmsh:physical`` cell data named by ``field_data``: the
+    cells of that tag in the blocks of the group's dimension), MED groups of cells (families of
+    ``cell_tags``); ``positions`` are the cells' rows within block ``block`` of ``m.cells``."""
+    cell_data: Mapping[str, Any] = getattr(m, "cell_data", None) or {}
+    for name, per_block in (getattr(m, "cell_sets", None) or {}).items():
+        if not str(name).startswith("gmsh:"):
+            for b, idx in enumerate(per_block):
+                if idx is not None and len(idx) and b < len(m.cells):
+                    yield str(name), b, np.asarray(idx, dtype=np.int64).ravel()
+    groups: list[tuple[str, Any, Any, int | None]] = []  # (name, cell data, tag, dimension)
+    if "gmsh:physical" in cell_data:
+        for name, value in (getattr(m, "field_data", None) or {}).items():
+            value = np.asarray(value).ravel()
+            groups.append((name, cell_data["gmsh:physical"], int(value[0]), int(value[1]) if len(value) > 1 else None))
+    for tag, names in (getattr(m, "cell_tags", None) or {}).items() if "cell_tags" in cell_data else ():
+        groups += [(name, cell_data["cell_tags"], tag, None) for name in names]
+    for name, tags, tag, dim in groups:
+        for b, t in enumerate(tags):
+            if b < len(m.cells) and (dim is None or cell_dimension(m.cells[b].type) == dim):
+                yield str(name), b, np.flatnonzero(np.asarray(t) == tag)
 
 
 def read_node_sets(m: Any, renum: np.ndarray) -> dict[str, np.ndarray]:
     """Named node sets ``{name: sorted node indices}`` of a meshio mesh, numbered by ``renum`` (file
     node -> mesh node, -1 for nodes no volume cell uses, which are dropped).
 
-    Point sets; cell sets (the nodes of their cells, whatever their dimension); Gmsh physical groups
-    (``gmsh:physical`` cell data named by ``field_data``: the nodes of the cells of that tag and
-    dimension, so a group of facets names the nodes of those facets); MED groups (families of
-    ``point_tags`` and ``cell_tags``). A name found in several of these gets the union.
+    Point sets; the nodes of every named group of cells (:func:`named_cells`, whatever their dimension:
+    a Gmsh physical group of facets names the nodes of those facets); MED groups of nodes (families of
+    ``point_tags``). A name found in several of these gets the union.
     """
     found: dict[str, list[np.ndarray]] = {}
 
     def add(name: str, nodes: Any) -> None:
         found.setdefault(str(name), []).append(np.asarray(nodes, dtype=np.int64).ravel())
 
-    def cells_of(block: int, which: Any) -> np.ndarray:
-        return np.asarray(m.cells[block].data)[np.asarray(which, dtype=np.int64)]
-
-    def tagged(tags: Any, tag: Any, cells_ok=lambda b: True) -> Iterator[np.ndarray]:
-        for b, t in enumerate(tags):
-            if b < len(m.cells) and cells_ok(b):
-                yield cells_of(b, np.flatnonzero(np.asarray(t) == tag))
-
-    cell_data: Mapping[str, Any] = getattr(m, "cell_data", None) or {}
     for name, idx in (getattr(m, "point_sets", None) or {}).items():
         add(name, idx)
-    for name, per_block in (getattr(m, "cell_sets", None) or {}).items():
-        if not str(name).startswith("gmsh:"):
-            for b, idx in enumerate(per_block):
-                if idx is not None and len(idx) and b < len(m.cells):
-                    add(name, cells_of(b, idx))
-    if "gmsh:physical" in cell_data:
-        for name, value in (getattr(m, "field_data", None) or {}).items():
-            value = np.asarray(value).ravel()
-            dim = int(value[1]) if len(value) > 1 else None
-            for nodes in tagged(cell_data["gmsh:physical"], int(value[0]),
-                                lambda b: dim is None or cell_dimension(m.cells[b].type) == dim):
-                add(name, nodes)
+    for name, b, idx in named_cells(m):
+        add(name, np.asarray(m.cells[b].data)[idx])
     point_tags = (getattr(m, "point_data", None) or {}).get("point_tags")
     for tag, names in (getattr(m, "point_tags", None) or {}).items() if point_tags is not None else ():
         for name in names:
             add(name, np.flatnonzero(np.asarray(point_tags) == tag))
-    for tag, names in (getattr(m, "cell_tags", None) or {}).items() if "cell_tags" in cell_data else ():
-        for name in names:
-            for nodes in tagged(cell_data["cell_tags"], tag):
-                add(name, nodes)
     out = {}
     for name, parts in found.items():
         nodes = np.unique(np.concatenate(parts))
         nodes = renum[nodes[(nodes >= 0) & (nodes < len(renum))]]
         out[name] = np.unique(nodes[nodes >= 0])
     return out
+
+
+def read_cell_sets(m: Any, kind: str) -> dict[str, np.ndarray]:
+    """Named sets of volume cells ``{name: sorted cell indices}`` of a meshio mesh (:func:`named_cells`
+    holding cells of type ``kind``), numbered like :func:`read_mesh`'s cells: the cells of type ``kind``
+    in file order. A name holding only facets (or other cells) is no cell set."""
+    offset, n = {}, 0
+    for b, block in enumerate(m.cells):
+        if block.type == kind:
+            offset[b], n = n, n + len(block.data)
+    found: dict[str, list[np.ndarray]] = {}
+    for name, b, idx in named_cells(m):
+        if b in offset and len(idx):
+            found.setdefault(name, []).append(offset[b] + idx)
+    return {name: np.unique(np.concatenate(parts)) for name, parts in found.items()}
+
+
+@dataclass
+class MeshFile(VolumeMesh):
+    """A user's mesh file (:func:`read_mesh`): a :class:`~stepnf.geometry.VolumeMesh` with its named cell
+    sets ``cell_sets`` ``{name: sorted rows of cells}`` (:func:`read_cell_sets`), the regions of
+    ``[model.materials.<set>]``."""
+
+    cell_sets: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def hex20_to_hex27(mesh: VolumeMesh) -> VolumeMesh:
@@ -156,4 +184,5 @@ def hex20_to_hex27(mesh: VolumeMesh) -> VolumeMesh:
         member[n0 + nf:] = member[C].all(axis=1)
         sets[name] = np.flatnonzero(member)
     info = dict(mesh.info, cells_in_file="hexahedron20")
-    return VolumeMesh(points=points, cells=cells, cell_type="hexahedron27", info=info, node_sets=sets)
+    # the same class (a MeshFile keeps its cell sets: the cells keep their rows)
+    return replace(mesh, points=points, cells=cells, cell_type="hexahedron27", info=info, node_sets=sets)

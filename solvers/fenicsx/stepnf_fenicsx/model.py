@@ -1,21 +1,35 @@
 """UFL forms of the St Venant-Kirchhoff solid (Green-Lagrange strain, linear elastic stress).
 
-With ``F = I + grad u``, ``E = (F^T F - I) / 2`` and ``S = lambda tr(E) I + 2 mu E``
-the internal virtual work is ``f(u) . v = int S : (F^T grad v) dx`` -- a cubic
-polynomial in the nodal displacements: ``f(u) = K u + G(u, u) + H(u, u, u)``,
-where ``G(u, v) = D^2 f(0)[u, v] / 2`` and ``H(u, v, w) = D^3 f[u, v, w] / 6``
-are obtained here as UFL Gateaux derivatives (exact, symmetric).
+With ``F = I + grad u``, ``E = (F^T F - I) / 2`` and ``S = C : E`` the internal
+virtual work is ``f(u) . v = int S : (F^T grad v) dx`` -- a cubic polynomial in
+the nodal displacements: ``f(u) = K u + G(u, u) + H(u, u, u)``, where
+``G(u, v) = D^2 f(0)[u, v] / 2`` and ``H(u, v, w) = D^3 f[u, v, w] / 6`` are
+obtained here as UFL Gateaux derivatives (exact, symmetric). ``C`` may differ
+from cell to cell (:class:`MaterialField`): f stays a cubic, since C does not
+depend on u. Isotropic materials keep ``S = lambda tr(E) I + 2 mu E``;
+orthotropic ones (or any ``C``) use :mod:`stepnf.materials`' Voigt order
+(11, 22, 33, 23, 13, 12) with engineering shear strains ``2 E_ij``.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from stepnf.materials import isotropic_stiffness
 
 from . import _compat
+from .regions import CellMaterials
 
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic linear elastic material: Young's modulus E, Poisson ratio nu, density rho."""
+    """Isotropic linear elastic material: Young's modulus E, Poisson ratio nu, density rho.
+
+    It answers like :class:`stepnf.materials.Material` (``C``, ``rho``, ``constants``, ``isotropic``),
+    so the forms take either kind.
+    """
 
     E: float
     nu: float
@@ -23,9 +37,64 @@ class Material:
 
     @property
     def lame(self) -> tuple[float, float]:
-        lam = self.E * self.nu / ((1 + self.nu) * (1 - 2 * self.nu))
-        mu = self.E / (2 * (1 + self.nu))
-        return lam, mu
+        return lame(self)
+
+    @property
+    def isotropic(self) -> bool:
+        return True
+
+    @property
+    def constants(self) -> dict[str, float]:
+        return {"E": self.E, "nu": self.nu, "rho": self.rho}
+
+    @property
+    def C(self) -> np.ndarray:
+        return isotropic_stiffness(self.E, self.nu)
+
+
+def lame(material: Any) -> tuple[float, float]:
+    """``(lambda, mu)`` of an isotropic material (either kind: its ``constants`` E and nu)."""
+    E, nu = float(material.constants["E"]), float(material.constants["nu"])
+    return E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+
+
+class MaterialField:
+    """The materials of a mesh's cells in UFL: :meth:`stress` ``S(E)`` and the density ``rho``.
+
+    ``material``: one material (either kind) for every cell, or :class:`~stepnf_fenicsx.regions.CellMaterials`.
+    One material: constants. Several: piecewise-constant (DG0) fields, each local cell set from the material
+    of its row in the input mesh (``topology.original_cell_index``: dolfinx reorders the cells and, under
+    MPI, distributes them). Isotropic materials only: lambda and mu (the form of an isotropic model is the
+    one it always was); else the 36 entries of ``C`` in global axes.
+    """
+
+    def __init__(self, msh: Any, material: Any):
+        from dolfinx import fem
+
+        mats, index = material.used() if isinstance(material, CellMaterials) else ([material], None)
+        self.isotropic = all(m.isotropic for m in mats)
+        values = [np.array(lame(m)) if self.isotropic else np.asarray(m.C, dtype=float) for m in mats]
+        rho = [m.rho for m in mats]
+        if len(mats) == 1:
+            self.rho = fem.Constant(msh, float(rho[0]))
+            fields = [fem.Constant(msh, v) for v in values[0]] if self.isotropic else [fem.Constant(msh, values[0])]
+        else:
+            self.rho = _compat.cell_function(msh, np.asarray(rho, dtype=float)[index])
+            table = np.asarray(values)[index]  # (input cells, 2) or (input cells, 6, 6)
+            fields = ([_compat.cell_function(msh, table[:, i]) for i in range(2)] if self.isotropic
+                      else [_compat.cell_function(msh, table)])
+        self.coefficients = fields  # [lambda, mu] or [C]
+
+    def stress(self, E):
+        """The second Piola-Kirchhoff stress ``S = C : E`` of a Green-Lagrange strain ``E`` (UFL)."""
+        import ufl
+
+        if self.isotropic:
+            lam, mu = self.coefficients
+            return lam * ufl.tr(E) * ufl.Identity(3) + 2 * mu * E
+        (C,) = self.coefficients
+        s = ufl.dot(C, ufl.as_vector([E[0, 0], E[1, 1], E[2, 2], 2 * E[1, 2], 2 * E[0, 2], 2 * E[0, 1]]))
+        return ufl.as_matrix([[s[0], s[5], s[4]], [s[5], s[1], s[3]], [s[4], s[3], s[2]]])
 
 
 class CubicForms:
@@ -72,21 +141,19 @@ class CubicForms:
 class SvkForms(CubicForms):
     """Compiled forms of one mesh: internal force, tangent, mass and intrusive tensors.
 
-    ``quadrature_degree`` fixes the quadrature (4: 3x3x3 Gauss points on
+    ``material``: one material for every cell or the materials of the cells
+    (:class:`MaterialField`). ``quadrature_degree`` fixes the quadrature (4: 3x3x3 Gauss points on
     hexahedra, exact for the mass matrix of affine Q2 cells and the usual full
     integration of the stiffness); f stays an exact cubic in u whatever the rule.
     """
 
-    def __init__(self, V, material: Material, quadrature_degree: int = 4):
+    def __init__(self, V, material: Any, quadrature_degree: int = 4):
         import ufl
         from dolfinx import fem
 
         self.V = V
         msh = V.mesh
-        lam_, mu_ = material.lame
-        lam = fem.Constant(msh, lam_)
-        mu = fem.Constant(msh, mu_)
-        rho = fem.Constant(msh, material.rho)
+        self.law = law = MaterialField(msh, material)
         dx = ufl.dx(domain=msh, metadata={"quadrature_degree": int(quadrature_degree)})
         v = ufl.TestFunction(V)
         du = ufl.TrialFunction(V)
@@ -100,7 +167,6 @@ class SvkForms(CubicForms):
             I = ufl.Identity(3)
             F = I + ufl.grad(u)
             E = 0.5 * (F.T * F - I)
-            S = lam * ufl.tr(E) * I + 2 * mu * E
-            return ufl.inner(F * S, ufl.grad(v)) * dx
+            return ufl.inner(F * law.stress(E), ufl.grad(v)) * dx
 
-        self.compile(internal(self.u), internal(self.zero), du, rho * ufl.inner(du, v) * dx)
+        self.compile(internal(self.u), internal(self.zero), du, law.rho * ufl.inner(du, v) * dx)

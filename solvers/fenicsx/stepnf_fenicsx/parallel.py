@@ -38,7 +38,10 @@ read on every rank), their union is fixed, K and M are the PETSc sub-matrices
 of the free dofs (the eigen-solve and the shifted solves run on them), and
 fields are expanded to the whole space for the assembly of the forces. The
 order differs from the serial run's and depends on the number of processes;
-the results (T, Gamma, labels, frequencies) do not depend on it. Rank 0 alone
+the results (T, Gamma, labels, frequencies) do not depend on it. Materials per
+cell set follow the cells wherever the partitioner puts them: each rank sets its
+cells' coefficients from their rows in the input mesh
+(``topology.original_cell_index``, :class:`stepnf_fenicsx.model.MaterialField`). Rank 0 alone
 writes files and prints: ``stepnf run`` handles that, a script using the
 Python API should write only where :func:`is_root` holds. The adapter declares ``collective``,
 so the pipeline keeps no force checkpoint (a rank reusing stored forces would

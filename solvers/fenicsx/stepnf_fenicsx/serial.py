@@ -16,8 +16,11 @@ conditions the solid is free (six rigid-body modes); ``boundary`` (the scene's
 ``[[model.boundary]]``) fixes directions of the nodes of named sets or boxes
 (:mod:`stepnf_fenicsx.constraints`) and those dofs are removed: every array
 the adapter exposes covers the free dofs, :meth:`FenicsxAdapter.free_dof_map`
-maps them into the whole space. Units are those of the mesh and material
-(SI for the bundled examples).
+maps them into the whole space. Materials: one isotropic :class:`Material`
+everywhere, or with a mesh file an orthotropic one and one per named cell set
+(``materials``; :mod:`stepnf_fenicsx.regions`, the forms' per-cell C and rho in
+:class:`stepnf_fenicsx.model.MaterialField`). Units are those of the mesh and
+material (SI for the bundled examples).
 """
 from __future__ import annotations
 
@@ -40,6 +43,7 @@ from .constraints import as_conditions, describe_conditions, dof_node_mask, free
 from .labels import count_edge_circle
 from .meshfile import read_mesh
 from .model import Material, SvkForms
+from .regions import CellMaterials, assign_materials, describe_material
 
 
 class FenicsxAdapter(FormsAdapter):
@@ -47,8 +51,13 @@ class FenicsxAdapter(FormsAdapter):
 
     Parameters
     ----------
-    mesh : the volume mesh (``hexahedron27``, ``tetra10``, or linear cells)
-    material : :class:`Material` (E, nu, rho)
+    mesh : the volume mesh (``hexahedron27``, ``tetra10``, or linear cells); a mesh file's
+        (:func:`~stepnf_fenicsx.meshfile.read_mesh`) has named cell sets ``cell_sets``
+    material : :class:`Material` (E, nu, rho) or :class:`stepnf.materials.Material` (isotropic or
+        orthotropic): every cell no set of ``materials`` names (``None``: the sets must cover the mesh)
+    materials : ``{cell set: material}``, the regions of ``[model.materials.<set>]``
+        (:func:`~stepnf_fenicsx.regions.assign_materials`: a set the mesh lacks, a cell in two sets or
+        unnamed cells without ``material`` are :class:`~stepnf.errors.SceneError` s)
     degree : polynomial degree of the displacement (2: Q2 on hexahedra, P2 on tetrahedra)
     geometry : optional ``{a, R, h}`` of a shallow spherical cap (shell scales, labels)
     quadrature_degree : quadrature degree of every form (4: 3x3x3 Gauss points on hexahedra)
@@ -62,12 +71,21 @@ class FenicsxAdapter(FormsAdapter):
     model_keys = MODEL_KEYS
     provides_intrusive_tensors = True
 
-    def __init__(self, mesh: VolumeMesh, material: Material, *, degree: int = 2,
+    def __init__(self, mesh: VolumeMesh, material: Any, *, degree: int = 2,
                  geometry: Mapping[str, float] | None = None, quadrature_degree: int = 4,
-                 boundary: Sequence[BoundaryCondition | Mapping[str, Any]] = (), scene_file: Path | None = None):
+                 boundary: Sequence[BoundaryCondition | Mapping[str, Any]] = (), scene_file: Path | None = None,
+                 materials: Mapping[str, Any] | None = None):
         t0 = time.perf_counter()
         self.mesh = mesh
         self.material = material
+        #: the materials of the cells when ``materials`` names cell sets (else ``material`` everywhere)
+        self.regions: CellMaterials | None = None
+        if materials:
+            self.regions = assign_materials(mesh.n_cells, getattr(mesh, "cell_sets", {}), material, materials,
+                                            scene_file, mesh.info.get("file"))
+        elif material is None:
+            raise SceneError(scene_file, "model.material", "missing: give [model.material] (every cell) or "
+                             "[model.materials.<set>] for named cell sets")
         self.geometry = None if geometry is None else dict(geometry)
         self.degree = int(degree)
         self.quadrature_degree = int(quadrature_degree)
@@ -80,7 +98,7 @@ class FenicsxAdapter(FormsAdapter):
         self._nodes, bs = _compat.dof_layout(self._V)
         assert bs == 3
         self._free = self._free_dofs(dof_node_mask(self._V, input_index, mask)) if self.boundary else None
-        self._forms = SvkForms(self._V, material, self.quadrature_degree)
+        self._forms = SvkForms(self._V, material if self.regions is None else self.regions, self.quadrature_degree)
         self._n = 3 * len(self._nodes) if self._free is None else self._free.n_free
         self._labeler: ModeLabeler | None = None
         self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
@@ -162,8 +180,13 @@ class FenicsxAdapter(FormsAdapter):
             mesh = read_mesh(p["mesh"])
         except Exception as exc:  # meshio raises many kinds
             raise SceneError(scene_file, "model.mesh", f"cannot read {str(p['mesh'])!r}: {exc}") from exc
-        units_warning(mesh.points, mat, source=p["mesh"], thickness=thickness)
-        return cls._class_for_world()(mesh, Material(**mat), geometry=p["geometry"],
+        named = {k: m for k, m in p["materials"].items() if k is not None}
+        default = p["materials"].get(None)
+        if default is not None and default.isotropic:
+            default = Material(*(float(default.constants[k]) for k in ("E", "nu", "rho")))
+        units_warning(mesh.points, (default or next(iter(named.values()))).constants, source=p["mesh"],
+                      thickness=thickness)
+        return cls._class_for_world()(mesh, default, materials=named, geometry=p["geometry"],
                                       quadrature_degree=p["quadrature_degree"], boundary=p["boundary"],
                                       scene_file=scene_file)
 
@@ -180,12 +203,13 @@ class FenicsxAdapter(FormsAdapter):
         return super().characteristic_length()
 
     def shell_scales(self):
-        if self.geometry is None:
+        """The shell scales of a plate or cap (``geometry``) of one isotropic material (else ``None``)."""
+        if self.geometry is None or self.regions is not None or not self.material.isotropic:
             return None
         from stepnf.shell import ShellScales
 
-        g, m = self.geometry, self.material
-        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m.E, nu=m.nu, rho=m.rho)
+        g, m = self.geometry, self.material.constants
+        return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])
 
     def _R(self) -> float:
         return math.inf if self.geometry is None else float(self.geometry["R"])
@@ -244,12 +268,15 @@ class FenicsxAdapter(FormsAdapter):
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d.update({"cell_type": self.mesh.cell_type, "n_cells": self.mesh.n_cells, "degree": self.degree,
-                  "quadrature_degree": self.quadrature_degree, "material": vars(self.material).copy(),
+                  "quadrature_degree": self.quadrature_degree,
+                  "material": None if self.material is None else describe_material(self.material),
                   "mesh": {k: v for k, v in self.mesh.info.items()}, "model": "St Venant-Kirchhoff 3D solid"})
         if self.geometry is not None:
             d["geometry"] = {k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
                              for k, v in self.geometry.items()}
         d["mesh"] = {k: (str(v) if isinstance(v, float) and math.isinf(v) else v) for k, v in d["mesh"].items()}
+        if self.regions is not None:
+            d["materials"] = self.regions.describe()
         if self.boundary:
             d["boundary"] = describe_conditions(self.boundary, self._bc_nodes, self._free)
         return d
