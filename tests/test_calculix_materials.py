@@ -290,18 +290,6 @@ def test_bad_regions_through_the_cli_exit_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_code_aster_takes_one_isotropic_material(tmp_path):
-    """code_aster keeps one isotropic material: orthotropic constants and regions are refused, naming the key."""
-    aster = pytest.importorskip("stepnf_code_aster")
-    (tmp_path / "m.med").write_bytes(b"")
-    for cfg, key in (({"material": CFRP}, "model.material.E1"), ({"material": STEEL, "materials": {"A": STEEL}},
-                                                                  "model.materials")):
-        with pytest.raises(SceneError) as ei:
-            aster.CodeAsterAdapter.validate_config({"mesh": "m.med", **cfg}, base_dir=tmp_path,
-                                                   scene_file=tmp_path / "s.toml")
-        assert ei.value.key == key and "fenicsx and calculix" in str(ei.value)
-
-
 def test_solvers_keys_lists_the_materials(capsys):
     from stepnf.cli import main
 

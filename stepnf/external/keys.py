@@ -96,7 +96,7 @@ def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: s
     if "materials" in config and "materials" not in schema:
         raise SceneError(scene_file, "model.materials", "this adapter takes one isotropic [model.material] (E, nu, "
                          "rho) on every element; [model.materials] regions and orthotropic constants are taken by "
-                         "the fenicsx and calculix adapters")
+                         "the fenicsx and calculix adapters and by code_aster")
     c = schema.check(config, file=scene_file, where="model", base_dir=base_dir, reserved=("solver",))
     sources = [k for k in ("mesh", "deck", "geometry") if k in c]
     if len(sources) != 1:
@@ -132,7 +132,7 @@ def _isotropic_only(c: Mapping[str, Any], scene_file: str | Path | None, orthotr
         why = ("a generated cap takes an isotropic material (E, nu, rho; orthotropic constants need a user's mesh)"
                if orthotropic_with_mesh else "this adapter takes one isotropic material (E, nu, rho) on every "
                "element; orthotropic constants and [model.materials] regions are taken by the fenicsx and calculix "
-               "adapters")
+               "adapters and by code_aster")
         raise SceneError(scene_file, f"model.material.{extra[0]}", why)
 
 

@@ -27,7 +27,11 @@ Scene keys (``[model]``)::
     rho = 4400.0
 
 or ``mesh = "part.med"`` (a user's MED volume mesh; ``mesh_name`` picks one
-of several meshes). Run keys: ``command`` (e.g. ``"docker run --rm -v
+of several meshes), with ``[model.material]`` isotropic or orthotropic (``E1`` ...
+``G23``, ``rho``, optional ``axes``) and ``[model.materials.<group>]`` for named
+groups of volume cells of the MED file (:mod:`stepnf.materials`): written as
+``${materials}`` (``DEFI_MATERIAU`` ``ELAS``/``ELAS_ORTH``, ``AFFE_MATERIAU``) and
+``${cara_elem}`` (``AFFE_CARA_ELEM`` ``MASSIF`` ``ANGL_REP``) of the templates. Run keys: ``command`` (e.g. ``"docker run --rm -v
 ${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
 (a folder whose ``forces.comm``, ``forces.export``, ``matrices.comm`` or
 ``matrices.export`` replace the shipped ones), ``version``, ``ncpus``,

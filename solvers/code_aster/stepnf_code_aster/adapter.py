@@ -1,4 +1,30 @@
-"""Implementation of the ``code_aster`` adapter (see the package docstring for the scene keys)."""
+"""Implementation of the ``code_aster`` adapter (see the package docstring for the scene keys).
+
+Materials (``[model.material]``, ``[model.materials.<MED cell group>]``, :mod:`.materials`): the
+keywords were checked against code_aster's own sources (the Krande/code-aster-copy mirror of
+code_aster 17, 2025):
+
+- ``code_aster/Cata/Commands/defi_materiau.py``: ``ELAS_ORTH`` takes ``E_L``, ``E_T``, ``NU_LT``,
+  ``G_LT`` (required), ``E_N``, ``NU_LN``, ``NU_TN``, ``G_LN``, ``G_TN``, ``RHO`` (optional); stepnf
+  writes all ten (axes 1, 2, 3 = L, T, N; ``NU_LT`` = nu12 is taken as -eps_T/eps_L under a stress
+  along L, code_aster's documented convention, not re-derived from its Fortran here).
+- ``code_aster/Cata/Commands/affe_materiau.py``: ``AFFE`` (``max='**'``) with one of ``TOUT``,
+  ``GROUP_MA``, ``MAILLE`` and ``MATER``; stepnf gives the default ``TOUT="OUI"`` first and then
+  each group (a later occurrence overrides an earlier one on the same cells, as for every carte).
+- ``code_aster/Cata/Commands/affe_cara_elem.py``: ``MASSIF`` with one of ``GROUP_MA``/``TOUT`` and
+  ``ANGL_REP`` (3 angles in 3D); ``bibfor/modelisa/aceama.F90`` first puts zero angles on the whole
+  mesh and then processes only ``GROUP_MA`` and ``MAILLE`` (``TOUT`` is accepted by the catalogue
+  but not read there), so a default material with axes gets a group ``STEPNF_ALL`` made by
+  ``DEFI_GROUP(CREA_GROUP_MA=_F(NOM=..., TOUT="OUI"))`` (``defi_group.py``). The angles are in
+  degrees (``r8dgrd`` where ANGL_REP is read, e.g. CALC_POINT_MAT) and follow
+  ``bibfor/utilitai/matrot.F90``: alpha about Z0, beta about Y1 in the negative sense, gamma
+  about X; the rows of its matrix are the material axes, like :func:`stepnf.materials.rotation`
+  (the test rebuilds that matrix from the angles to 1e-12).
+- ``code_aster/Behaviours/elas.py``: the behaviour ``ELAS`` takes ``mc_mater = ('ELAS',
+  'ELAS_ORTH', 'ELAS_ISTR')`` with ``deformation`` including ``GROT_GDEP`` in ``3D``: STAT_NON_LINE
+  with ``RELATION="ELAS", DEFORMATION="GROT_GDEP"`` stays St Venant-Kirchhoff with orthotropy.
+- ``code_aster/Cata/Commands/assemblage.py``: ``ASSEMBLAGE`` takes ``CARA_ELEM``.
+"""
 from __future__ import annotations
 
 import math
@@ -13,15 +39,18 @@ import numpy as np
 import scipy.sparse as sp
 
 from stepnf.boundary import BOUNDARY_KEY
-from stepnf.errors import SolverRunError
+from stepnf.errors import SceneError, SolverRunError
 from stepnf.external import (RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene, missing_output,
                              require_files, solid_model_keys)
 from stepnf.external.keys import MEMORY_MB, NCPUS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
+from stepnf.materials import MATERIALS_KEY, Material, assign_cells
 from stepnf.schema import Key, Schema
 
-from .med import MedError, add_nodal_field, read_groups, read_mesh_nodes, read_nodal_steps, write_med
+from .materials import has_axes, is_plain, materials_text
+from .med import (MedError, add_nodal_field, read_cell_groups, read_groups, read_mesh_nodes, read_nodal_steps,
+                  write_med)
 
 ELEMENTS = ("hex20",)
 TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export")
@@ -39,7 +68,7 @@ MODEL_KEYS = Schema(
     Key("command", "text", "the command running one job; ${export} and ${workdir} are filled in",
         default=DEFAULT_COMMAND, what="a command"),
     Key("version", "text", "code_aster version of the .export file", default="stable", what="a version name"),
-    NCPUS, MEMORY_MB, *RUN_KEYS, BOUNDARY_KEY,
+    NCPUS, MEMORY_MB, *RUN_KEYS, BOUNDARY_KEY, MATERIALS_KEY,
 )
 FIELD_IN, FIELD_OUT = "U", "F"
 REAL = "%.17g"
@@ -74,7 +103,11 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     Parameters
     ----------
     points : (N, 3) node coordinates of the mesh
-    material : ``{"E", "nu", "rho"}``
+    material : ``{"E", "nu", "rho"}`` (``{}`` when ``materials`` holds no isotropic default)
+    materials : ``{None: default, MED cell group: Material}`` (:func:`stepnf.materials.materials`): a
+        material per named group of volume cells of the MED mesh, isotropic or orthotropic
+        (:meth:`apply_materials`)
+    cell_groups : ``(n_cells, {group: 0-based volume cells})`` of the mesh (:func:`.med.read_cell_groups`)
     mesh_file : a user's MED mesh (copied into each work folder) or ``None``
     cells, cell_type : the mesh to write when ``mesh_file`` is ``None`` (VTK order)
     mesh_name : name of the mesh inside the MED file
@@ -95,7 +128,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                  templates: str | Path | None = None, command: str = DEFAULT_COMMAND, version: str = "stable",
                  ncpus: int = 1, memory_mb: int = 4096, geometry: Mapping[str, Any] | None = None,
                  midsurface: np.ndarray | None = None, node_sets: Mapping[str, np.ndarray] | None = None,
-                 **run: Any):
+                 materials: Mapping[str | None, Material] | None = None,
+                 cell_groups: tuple[int, Mapping[str, np.ndarray]] | None = None, **run: Any):
         cmd = CommandTemplate(command, source="[model] command")
         if not cmd.text.split():
             raise ValueError("empty code_aster command")
@@ -108,7 +142,9 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         if self.mesh_file is None and self.cells is None:
             raise ValueError("give either a MED mesh file or cells to write")
         self.mesh_name = mesh_name
-        self.material = {k: float(material[k]) for k in MATERIAL_KEYS}
+        self.material = {k: float(material[k]) for k in MATERIAL_KEYS if k in material}
+        if materials is None and len(self.material) < len(MATERIAL_KEYS):
+            raise ValueError(f"code_aster needs the material's {list(MATERIAL_KEYS)}, got {sorted(material)}")
         self.command = cmd
         self.export_values = {"version": version, "ncpus": int(ncpus), "memory_mb": int(memory_mb)}
         self.templates = {name: self._template(name, templates) for name in TEMPLATE_NAMES}
@@ -119,6 +155,45 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self._M: sp.csr_matrix | None = None
         self.hex20_cells = self.cells if cell_type == "hexahedron20" else None
         self.timings: dict[str, float] = {}
+        self.cell_groups = cell_groups if cell_groups is not None else (0 if self.cells is None else len(self.cells), {})
+        #: ``${materials}`` and ``${cara_elem}`` of the command templates (:mod:`.materials`)
+        self.materials: dict[str | None, Material] = {}
+        self.material_lines = ("", "")
+        if materials:
+            self.apply_materials(materials)
+        elif self.material:
+            from stepnf.materials import material as checked_material
+
+            self.apply_materials({None: checked_material(self.material, None, "model.material")})
+
+    def apply_materials(self, materials: Mapping[str | None, Material], *, scene_file: Any = None) -> None:
+        """One material per named group of volume cells of the MED mesh (``[model.materials.<group>]``), the
+        default (``None``) on the others: SceneErrors naming the key for a group the mesh lacks (listing its
+        groups), a cell in two groups, cells in none without a default (:func:`stepnf.materials.assign_cells`),
+        and for regions, orthotropy or axes that a user's template cannot hold (no ``${materials}``,
+        no ``${cara_elem}``)."""
+        named = [k for k in materials if k is not None]
+        if named:
+            n_cells, groups = self.cell_groups
+            assign_cells(n_cells, groups, named, None in materials, scene_file, self.mesh_file)
+        if not is_plain(materials):
+            key = "model.materials" if named else "model.material"
+            asked = "[model.materials] regions" if named else "an orthotropic [model.material]"
+            for job in ("forces.comm", "matrices.comm"):
+                have = self.templates[job].placeholders
+                if "materials" not in have:
+                    raise SceneError(scene_file, key, f"the template {self.templates[job].source} has no ${{materials}} "
+                                     f"placeholder, so it cannot hold {asked}: put a line ${{materials}} where its "
+                                     "DEFI_MATERIAU and AFFE_MATERIAU stand (stepnf writes them, and defines cara)")
+                if has_axes(materials) and "cara_elem" not in have:
+                    raise SceneError(scene_file, key, f"the template {self.templates[job].source} has no "
+                                     "${cara_elem} placeholder for the material axes: end its CHAM_MATER=fieldmat, "
+                                     "line with ${cara_elem} (stepnf writes CARA_ELEM=cara there)")
+        self.materials = dict(materials)
+        default = materials.get(None)
+        self.material = ({k: float(default.constants[k]) for k in MATERIAL_KEYS}
+                         if default is not None and default.isotropic else {})
+        self.material_lines = materials_text(self.materials)
 
     @staticmethod
     def _template(name: str, folder: str | Path | None) -> CommandTemplate:
@@ -143,7 +218,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
         name = mesh_name or first_mesh(path)
         return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, node_sets=read_groups(path, name),
-                   **kw)
+                   cell_groups=read_cell_groups(path, name), **kw)
 
     from_mesh_file = from_med  # the ``mesh`` key (SolidFromScene)
 
@@ -154,6 +229,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                  geometry={k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
                            for k, v in self.geometry.items()},
                  templates={k: t.source for k, t in self.templates.items()})
+        if self.materials and not is_plain(self.materials):
+            d["materials"] = {"default" if k is None else k: dict(m.constants) for k, m in self.materials.items()}
         if self.free_dofs is not None:
             d["boundary"] = {"conditions": list(self.applied_conditions), **self.free_dofs.describe()}
         return d
@@ -166,6 +243,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             "matrices_file": str(workdir / "matrices.npz"), "export": str(workdir / f"{job}.export"),
             "time_limit": int(self.timeout) if self.timeout else 86400,
             **{k: REAL % v for k, v in self.material.items()}, **self.export_values,
+            "materials": self.material_lines[0], "cara_elem": self.material_lines[1],
         }
         return vals
 

@@ -367,3 +367,40 @@ def _family_groups(f, mesh: str) -> dict[int, list[str]]:
             names = np.asarray(fam["GRO"]["NOM"][()]).reshape(-1, 80).astype(np.uint8)
             out[int(fam.attrs["NUM"])] = [bytes(row).decode("ascii", "replace").strip() for row in names]
     return out
+
+
+#: MED names of the volume cells (the cells that carry a material; faces and edges do not).
+MED_VOLUME_CELLS = ("TE4", "T10", "PY5", "P13", "PE6", "P15", "P18", "HE8", "H20", "H27")
+
+
+def read_cell_groups(path: str | Path, mesh: str | None = None) -> tuple[int, dict[str, np.ndarray]]:
+    """The volume cells of the mesh and its groups of them: ``(n_cells, {name: 0-based cell positions})``
+    (for ``[model.materials.<set>]``).
+
+    Cells are numbered block by block in the order of :data:`MED_VOLUME_CELLS`, each block in
+    its file order; a cell family (``NUM < 0``) names the cells whose ``MAI/<type>/FAM`` is its
+    number. A group of faces only is listed with no cell (``assign_cells`` refuses it).
+    """
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            name = mesh or next(iter(f["ENS_MAA"]))
+            families = {num: groups for num, groups in _family_groups(f, name).items() if num < 0}
+            st = next(iter(f["ENS_MAA"][name].values()))
+            mai = st["MAI"] if "MAI" in st else {}
+            found: dict[str, list[np.ndarray]] = {g: [] for groups in families.values() for g in groups}
+            start = 0
+            for kind in MED_VOLUME_CELLS:
+                if kind not in mai or "NOD" not in mai[kind]:
+                    continue
+                n = int(mai[kind]["NOD"].attrs["NBR"])
+                cfam = np.asarray(mai[kind]["FAM"]) if "FAM" in mai[kind] else np.zeros(n, dtype=int)
+                for num, groups in families.items():
+                    for g in groups:
+                        found[g].append(start + np.flatnonzero(cfam == num))
+                start += n
+    except (OSError, KeyError, ValueError, StopIteration) as exc:
+        raise MedError(f"{path}: cannot read the cell groups of the MED mesh ({type(exc).__name__}: {exc})") from None
+    empty = np.zeros(0, dtype=np.int64)
+    return start, {g: np.unique(np.concatenate(parts)) if parts else empty for g, parts in found.items()}
