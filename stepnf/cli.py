@@ -1,4 +1,4 @@
-"""Command-line interface: ``stepnf run SCENE``, ``stepnf solvers [--keys NAME]``.
+"""Command-line interface: ``stepnf run SCENE``, ``stepnf modes SCENE``, ``stepnf show RESULT.h5``, ``stepnf solvers``.
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
 solver or numerical failure, or a file that cannot be written; 4 a sweep with
@@ -119,6 +119,47 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_modes(args: argparse.Namespace) -> int:
+    """``stepnf modes SCENE [-n N]``: the first elastic modes from one eigen-solve, no STEP."""
+    from .modes import format_survey, modal_survey
+    from .progress import Progress
+    from .scene import load_scene
+
+    survey = modal_survey(load_scene(args.scene), args.n, Progress(enabled=not args.quiet))
+    print(survey.to_json(indent=2) if args.json else format_survey(survey))
+    return 0
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    """``stepnf show RESULT.h5``: the table of a stored run."""
+    from .show import stored_result
+    from .table import format_table
+
+    print(format_table(stored_result(args.file)))
+    return 0
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"stepnf {version('stepnf')}"
+    except PackageNotFoundError:  # a source tree that is not installed
+        from . import __version__
+
+        return f"stepnf {__version__}"
+
+
 def _mpi_size() -> int:
     """Number of ranks started by ``mpirun``/``srun`` (1 otherwise)."""
     return _launcher(("OMPI_COMM_WORLD_SIZE", "PMIX_SIZE", "PMI_SIZE"), 1)
@@ -196,6 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
     parser.add_argument("--debug", action="store_true",
                         help="on failure, also print the Python traceback (for bug reports)")
+    parser.add_argument("--version", action="version", version=_version())
     # --debug after the command too (`stepnf run s.toml --debug`); SUPPRESS keeps the top-level value
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
@@ -209,6 +251,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_run.add_argument("--no-hdf5", action="store_true", help="do not write the HDF5 file")
     p_run.add_argument("--no-plot", action="store_true", help="do not draw figures")
     p_run.set_defaults(func=_cmd_run)
+    p_md = sub.add_parser("modes", parents=[common], help="list the first elastic modes (frequency, label, "
+                          "kinetic-energy shares) from one eigen-solve, no STEP")
+    p_md.add_argument("scene", help="scene file (TOML)")
+    p_md.add_argument("-n", type=_positive, default=None, metavar="N", help="number of modes (default 12)")
+    p_md.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p_md.add_argument("--quiet", "-q", action="store_true", help="no progress messages on stderr")
+    p_md.set_defaults(func=_cmd_modes)
+    p_sh = sub.add_parser("show", parents=[common], help="print the table of a stored run again")
+    p_sh.add_argument("file", help="results file (HDF5) written by `stepnf run`")
+    p_sh.set_defaults(func=_cmd_show)
     p_sw = sub.add_parser("sweep", parents=[common], help="run every case of a sweep file on Dask (resumable)")
     p_sw.add_argument("file", help="sweep file (TOML)")
     p_sw.add_argument("--scheduler", help="address of an existing dask.distributed scheduler")

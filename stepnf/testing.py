@@ -12,19 +12,30 @@ Checks (each its own pytest id): M and K symmetric; M positive on the
 diagonal; ``f(0) = 0``; the finite-difference slope of f along random fields
 equals ``K`` (central differences, error O(eps^2) for a cubic f); the batch
 equals the loop; STEP recovers the intrusive tensors where the adapter offers
-them. Tolerances are relative and can be loosened per adapter for solvers that
+them; the force is conservative (its tangent at a nonzero field is symmetric,
+probed by finite differences); ``dof_coordinates`` and ``dof_directions`` have
+one finite entry per dof; the declared ``[model]`` keys are well formed.
+Tolerances are relative and can be loosened per adapter for solvers that
 print few digits (CalculiX: 7).
+
+Each check passes, fails (``AssertionError``) or does not apply to the adapter
+(:class:`CheckSkipped`, with the reason; under pytest the test is reported as
+skipped). :func:`run_checks` runs them all outside pytest and returns one
+:class:`CheckResult` (``passed`` / ``failed`` / ``skipped`` and why) per check.
 """
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Callable, Iterator
+import tempfile
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import scipy.sparse as sp
 
-from .adapter import SolverAdapter
+from .adapter import DIRECTIONS, SolverAdapter
+from .errors import SceneError
+from .schema import KINDS, Key, Schema
 
 
 @dataclass(frozen=True)
@@ -34,7 +45,9 @@ class Tolerances:
     ``symmetry``: ``|A - A^T| <= symmetry * |A|`` (max norms);
     ``zero_force``: ``|f(0)| <= zero_force * |K|`` times a unit field;
     ``slope``: central-difference slope against ``K u``;
-    ``batch``: batch against loop; ``step``: STEP against intrusive tensors.
+    ``batch``: batch against loop; ``step``: STEP against intrusive tensors;
+    ``conservative``: asymmetry of the nonlinear part of the tangent (see
+    :func:`check_conservative_force`); ``None`` derives it from ``batch``.
     """
 
     symmetry: float = 1e-10
@@ -42,6 +55,33 @@ class Tolerances:
     slope: float = 1e-6
     batch: float = 1e-12
     step: float = 1e-7
+    conservative: float | None = None
+
+    def conservative_tolerance(self) -> float:
+        """``conservative``, or ``max(1e-6, 1e3 * batch)``: ``batch`` is the relative round-off of
+        one force (1e-12 in process, 1e-6 for a solver printing 7 digits); the asymmetry divides
+        differences of forces by the step (0.1) and by the nonlinear share of the tangent (~0.1 at
+        an amplitude of 0.1 length), so its noise is ~100x that round-off; x10 on top is the margin.
+        1e-6 is the floor in process (noise ~1e-13): a non-conservative force (a wrong stress
+        measure) is asymmetric at the 1e-2 .. 1 level, far above either."""
+        return self.conservative if self.conservative is not None else max(1e-6, 1e3 * self.batch)
+
+
+class CheckSkipped(Exception):
+    """A check does not apply to this adapter; the message says why."""
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """The outcome of one check: ``status`` is ``"passed"``, ``"failed"`` or ``"skipped"``."""
+
+    name: str
+    status: str
+    reason: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return self.status == "passed"
 
 
 def _maxabs(A) -> float:
@@ -102,7 +142,7 @@ def check_batch_equals_loop(adapter: SolverAdapter, tol: Tolerances) -> None:
 
 def check_step_equals_intrusive(adapter: SolverAdapter, tol: Tolerances) -> None:
     if not adapter.provides_intrusive_tensors:
-        return
+        raise CheckSkipped("the adapter does not provide intrusive tensors (provides_intrusive_tensors is False)")
     from .counters import Counters
     from .step import ForceEvaluator, StepPolicy, targeted_step
 
@@ -120,27 +160,168 @@ def check_step_equals_intrusive(adapter: SolverAdapter, tol: Tolerances) -> None
     assert errH <= tol.step, f"STEP u.H(u,u,u) differs from the intrusive one by {errH:.3e} (relative)"
 
 
+def _nonlinear_products(adapter: SolverAdapter, u: np.ndarray, V: np.ndarray, h: float) -> np.ndarray:
+    """``(J(u) - K) v`` for every row ``v`` of ``V``: Richardson-extrapolated central differences of f
+    with steps ``h`` and ``h/2`` (exact for a cubic f, O(h^4) otherwise), all fields in one batch."""
+    steps = (h, -h, h / 2, -h / 2)
+    F = adapter.internal_forces(np.concatenate([u + s * V for s in steps]))
+    Fh1, Fh2, Fq1, Fq2 = F.reshape(4, len(V), -1)
+    Jv = (4 * (Fq1 - Fq2) / h - (Fh1 - Fh2) / (2 * h)) / 3
+    return Jv - (adapter.stiffness_matrix() @ V.T).T
+
+
+def _asymmetry(V: np.ndarray, D: np.ndarray, KV: np.ndarray) -> float:
+    """Largest ``|w.Dv - v.Dw|`` over the pairs of rows, relative to ``|Dv||w| + |Dw||v|`` (floored at
+    1e-4 of the same with K: a force linear at this amplitude has nothing to be non-conservative in)."""
+    worst = 0.0
+    nrm = np.linalg.norm
+    for i in range(len(V)):
+        for j in range(i + 1, len(V)):
+            v, w = V[i], V[j]
+            scale = max(nrm(D[i]) * nrm(w) + nrm(D[j]) * nrm(v), 1e-4 * (nrm(KV[i]) * nrm(w) + nrm(KV[j]) * nrm(v)))
+            worst = max(worst, abs(w @ D[i] - v @ D[j]) / max(scale, 1e-300))
+    return worst
+
+
+def check_conservative_force(adapter: SolverAdapter, tol: Tolerances) -> None:
+    """The tangent ``J = df/du`` at a nonzero field is symmetric (f is the gradient of an energy).
+
+    Probed with three random fields ``v`` (``w.Jv`` against ``v.Jw`` for each pair), never forming J.
+    Only the nonlinear part ``J - K`` is compared (K is symmetric by :func:`check_symmetric_matrices`
+    and would hide an asymmetry that only the nonlinear terms carry, as with a wrong stress measure).
+    The field has amplitude 0.1 length (so the nonlinear share of J is ~0.1 for a quadratic f), the
+    probes the same, the steps 0.1 and 0.05 of that (see :meth:`Tolerances.conservative_tolerance`).
+    An adapter's own ``tangent_stiffness`` is held to the same test.
+    """
+    n = adapter.n_dofs
+    if n < 2:
+        raise CheckSkipped("a single dof: every tangent is symmetric")
+    u = 10 * _random_fields(adapter, 1, seed=5)[0]
+    V = 10 * _random_fields(adapter, 3, seed=6)
+    KV = (adapter.stiffness_matrix() @ V.T).T
+    limit = tol.conservative_tolerance()
+    asym = _asymmetry(V, _nonlinear_products(adapter, u, V, 0.1), KV)
+    assert asym <= limit, (f"the internal force is not conservative: its tangent at a nonzero field is not symmetric "
+                           f"(|w.(J-K)v - v.(J-K)w| = {asym:.3e} relative, allowed {limit:.1e}); f must be the "
+                           "gradient of an energy (a work-conjugate stress and strain measure, no follower load)")
+    if adapter.provides_tangent_stiffness:
+        JT = adapter.tangent_stiffness(u)
+        asym = _asymmetry(V, (JT @ V.T).T - KV, KV)
+        assert asym <= limit, f"tangent_stiffness(u) is not symmetric: {asym:.3e} relative (allowed {limit:.1e})"
+
+
+def _dof_array(adapter: SolverAdapter, what: str, shape: tuple[int, ...], meaning: str) -> np.ndarray:
+    """``adapter.<what>()`` as an array of ``shape``; :class:`CheckSkipped` when the adapter gives none."""
+    a = getattr(adapter, what)()
+    if a is None:
+        raise CheckSkipped(f"the adapter gives no {what.replace('_', ' ')} ({what}() is None)")
+    a = np.asarray(a)
+    assert a.shape == shape, f"{what}() has shape {a.shape}, expected {shape}: {meaning}"
+    return a
+
+
+def check_dof_coordinates(adapter: SolverAdapter, tol: Tolerances) -> None:
+    X = _dof_array(adapter, "dof_coordinates", (adapter.n_dofs, 3), "one node per dof")
+    assert X.dtype.kind in "biuf" and np.all(np.isfinite(X)), "dof_coordinates() holds non-finite or non-real values"
+
+
+def check_dof_directions(adapter: SolverAdapter, tol: Tolerances) -> None:
+    d = _dof_array(adapter, "dof_directions", (adapter.n_dofs,), "one direction per dof")
+    assert d.dtype.kind in "iu" or (d.dtype.kind == "f" and np.all(d == np.round(d))), \
+        f"dof_directions() has dtype {d.dtype}; expected integer codes"
+    bad = (d < 0) | (d >= len(DIRECTIONS))
+    assert not bad.any(), (f"dof_directions() has codes outside 0..{len(DIRECTIONS) - 1} ({DIRECTIONS}), "
+                           f"e.g. {d[bad][:5].tolist()}")
+
+
+def check_model_keys(adapter: SolverAdapter, tol: Tolerances) -> None:
+    """The declared ``[model]`` keys are a :class:`Schema` of valid :class:`Key` s whose defaults pass their
+    own check (and, with no required key, the schema's check as one table). ``validate_config`` is not
+    called: its checks across keys ("a mesh or a deck") may refuse any table of defaults alone."""
+    cls = type(adapter)
+    schema = cls.model_schema()
+    if schema is None:
+        raise CheckSkipped(f"{cls.__name__} declares no [model] keys (model_schema() is None)")
+    assert isinstance(schema, Schema), f"model_schema() returned {type(schema).__name__}, expected a Schema"
+    defaults, bad = {}, []
+    with tempfile.TemporaryDirectory() as base:
+        for key in schema:
+            if not isinstance(key, Key) or key.kind not in KINDS:
+                bad.append(f"{key!r}: not a Key of a known kind")
+            elif key.default is not None and key.kind not in ("file", "folder"):  # those must exist
+                try:
+                    key.check(key.default, file=None, where="model", base_dir=base)
+                    defaults[key.name] = key.default
+                except SceneError as exc:
+                    bad.append(f"default of {key.name!r}: {exc}")
+        if not bad and not any(k.required for k in schema):  # the defaults together, as a [model] table
+            try:
+                schema.check(defaults, where="model", base_dir=base, reserved=("solver",))
+            except SceneError as exc:
+                bad.append(f"the defaults together {defaults}: {exc}")
+    assert not bad, "the declared [model] keys are broken: " + "; ".join(bad)
+
+
 CHECKS: dict[str, Callable[[SolverAdapter, Tolerances], None]] = {
     "symmetric_matrices": check_symmetric_matrices,
     "zero_force": check_zero_force,
     "slope_equals_K": check_slope_equals_K,
     "batch_equals_loop": check_batch_equals_loop,
     "step_equals_intrusive": check_step_equals_intrusive,
+    "conservative_force": check_conservative_force,
+    "dof_coordinates": check_dof_coordinates,
+    "dof_directions": check_dof_directions,
+    "model_keys": check_model_keys,
 }
 
 
-def adapter_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None
-                   ) -> Iterator[tuple[str, Callable[[], None]]]:
-    """Yield ``(name, check)``; each check builds the adapter once (cached) and asserts."""
+def run_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None,
+               only: Sequence[str] | None = None) -> list[CheckResult]:
+    """Every check (or those named in ``only``) on one adapter, outside pytest: a result per check."""
+    out = []
+    for name, check in adapter_checks(make_adapter, tolerances, skip=_raise_skip):
+        if only is not None and name not in only:
+            continue
+        try:
+            out.append(check())
+        except CheckSkipped as exc:
+            out.append(CheckResult(name, "skipped", str(exc)))
+        except AssertionError as exc:
+            out.append(CheckResult(name, "failed", str(exc)))
+    return out
+
+
+def _raise_skip(reason: str) -> None:
+    raise CheckSkipped(reason)
+
+
+def _pytest_skip(reason: str) -> None:
+    try:
+        import pytest
+    except ImportError:  # pragma: no cover - outside pytest the reason still travels
+        raise CheckSkipped(reason) from None
+    pytest.skip(reason)
+
+
+def adapter_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None,
+                   skip: Callable[[str], None] = _pytest_skip) -> Iterator[tuple[str, Callable[[], CheckResult]]]:
+    """Yield ``(name, check)``; each check builds the adapter once (cached) and asserts. A check returns a
+    passed :class:`CheckResult`, raises ``AssertionError`` when it fails, and calls ``skip(reason)`` when it
+    does not apply (``pytest.skip`` by default, so pytest reports it as skipped, not passed)."""
     tol = tolerances or Tolerances()
     get = functools.lru_cache(maxsize=1)(make_adapter)
     for name, fn in CHECKS.items():
-        yield name, _bind(fn, get, tol)
+        yield name, _bind(name, fn, get, tol, skip)
 
 
-def _bind(fn, get, tol):
-    def check() -> None:
-        fn(get(), tol)
+def _bind(name, fn, get, tol, skip):
+    def check() -> CheckResult:
+        try:
+            fn(get(), tol)
+        except CheckSkipped as exc:
+            skip(str(exc))
+            return CheckResult(name, "skipped", str(exc))
+        return CheckResult(name, "passed")
     check.__name__ = fn.__name__
     return check
 

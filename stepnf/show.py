@@ -1,0 +1,52 @@
+"""``stepnf show RESULT.h5``: the table of a stored run, printed again from its JSON document."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .backbone import MethodResult
+from .errors import StoreError
+from .results import ModeResult, RunResult, read_hdf5
+
+
+def _float(x: Any) -> float | None:
+    """A JSON number back to a float (``"inf"``/``"-inf"`` included)."""
+    return None if x is None else float(x)
+
+
+def _label(x: Any) -> Any:
+    return tuple(x) if isinstance(x, list) else x
+
+
+def result_from_document(doc: dict[str, Any]) -> RunResult:
+    """The :class:`RunResult` a run's JSON document describes (what :func:`stepnf.table.format_table` needs)."""
+    modes = []
+    for m in doc.get("modes", []):
+        rec = ModeResult(index=int(m["index"]), label=_label(m.get("label")), omega=float(m["omega"]),
+                         rho=_float(m.get("rho")), rho_mode=m.get("rho_mode"), omega_bar=_float(m.get("omega_bar")),
+                         w_max=_float(m.get("w_max")), step=dict(m.get("step") or {}),
+                         flags=list(m.get("flags") or []))
+        for name, r in (m.get("methods") or {}).items():
+            rec.methods[name] = MethodResult(method=name, T=float(r["T"]), C=tuple(float(c) for c in r.get("C", ())),
+                                             flags=list(r.get("flags") or []), order=r.get("order", "modal"),
+                                             retained_modes=r.get("retained_modes"),
+                                             T_error=_float(r.get("T_error")), gamma=_float(r.get("gamma")))
+        modes.append(rec)
+    return RunResult(scene=dict(doc.get("scene") or {}), modes=modes, counts=dict(doc.get("counts") or {}),
+                     timings=dict(doc.get("timings") or {}), spectrum=dict(doc.get("spectrum") or {}),
+                     model=dict(doc.get("model") or {}), kappa=_float(doc.get("kappa")),
+                     flags=list(doc.get("flags") or []), hdf5_path=doc.get("hdf5"),
+                     extra_files=list(doc.get("files") or []))
+
+
+def stored_result(path: str | Path) -> RunResult:
+    """The run stored in ``path`` (a :class:`stepnf.errors.StoreError` for a file that is not one)."""
+    if not Path(path).is_file():
+        raise StoreError(f"{path}: no such file")
+    doc = read_hdf5(path)
+    try:
+        result = result_from_document(doc)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise StoreError(f"{path}: the stored run document is incomplete ({type(exc).__name__}: {exc})") from exc
+    result.hdf5_path = str(path)
+    return result

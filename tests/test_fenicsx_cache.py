@@ -1,0 +1,205 @@
+"""The FEniCSx form cache: where it goes (read-only images, non-root users) and a silent compiler."""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("dolfinx")
+
+from stepnf.cli import main  # noqa: E402
+from stepnf.errors import OutputError, OutputWarning  # noqa: E402
+from stepnf_fenicsx import _compat  # noqa: E402
+
+pytestmark = pytest.mark.fenicsx
+
+ROOT = hasattr(os, "geteuid") and os.geteuid() == 0
+
+
+@pytest.fixture
+def env(monkeypatch, tmp_path):
+    """No STEPNF_CACHE_DIR, not a source checkout, XDG and temp folders under tmp_path; fresh resolution."""
+    monkeypatch.delenv("STEPNF_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(_compat, "__file__", str(tmp_path / "site" / "pkg" / "stepnf_fenicsx" / "_compat.py"))
+    _compat._resolve_cache.cache_clear()
+    yield tmp_path
+    _compat._resolve_cache.cache_clear()
+
+
+def unwritable(folder: Path) -> Path:
+    """A path no file can be written into, also for root: below a regular file."""
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    folder.write_text("not a folder")
+    return folder
+
+
+def test_stepnf_cache_dir_comes_first(env, monkeypatch):
+    monkeypatch.setenv("STEPNF_CACHE_DIR", str(env / "mine"))
+    assert _compat.cache_dir() == env / "mine" / "fenicsx"
+    assert (env / "mine" / "fenicsx").is_dir()
+
+
+def test_unusable_stepnf_cache_dir_is_an_error_naming_the_variable(env, monkeypatch, capsys):
+    monkeypatch.setenv("STEPNF_CACHE_DIR", str(unwritable(env / "mine")))
+    with pytest.raises(OutputError, match="STEPNF_CACHE_DIR=.*not a folder.*writable folder or unset it"):
+        _compat.cache_dir()
+    from stepnf.cli import report_failure  # one line on stderr, not a traceback
+
+    try:
+        _compat.cache_dir()
+    except OutputError as exc:
+        assert report_failure(exc) == 3
+    err = capsys.readouterr().err
+    assert err.startswith("stepnf: error: STEPNF_CACHE_DIR=") and err.count("\n") == 1
+
+
+@pytest.mark.skipif(ROOT or not hasattr(os, "geteuid"), reason="root writes into a 0o555 folder")
+def test_read_only_stepnf_cache_dir(env, monkeypatch):
+    ro = env / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        monkeypatch.setenv("STEPNF_CACHE_DIR", str(ro))
+        with pytest.raises(OutputError, match="STEPNF_CACHE_DIR"):
+            _compat.cache_dir()
+    finally:
+        ro.chmod(0o755)
+
+
+def test_source_checkout_uses_its_own_cache(monkeypatch):
+    monkeypatch.delenv("STEPNF_CACHE_DIR", raising=False)
+    _compat._resolve_cache.cache_clear()
+    repo = Path(_compat.__file__).resolve().parents[3]
+    if not (repo / "stepnf").is_dir():
+        pytest.skip("the adapter is installed, not run from a checkout")
+    from stepnf.atomic import check_folder
+
+    try:
+        if check_folder(repo / ".cache" / "fenicsx"):  # a read-only checkout: as if installed
+            assert _compat.cache_dir().parts[-2:] == ("stepnf", "fenicsx")
+        else:
+            assert _compat.cache_dir() == repo / ".cache" / "fenicsx"
+    finally:
+        _compat._resolve_cache.cache_clear()
+
+
+def test_installed_uses_the_xdg_cache_silently(env):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _compat.cache_dir() == env / "xdg" / "stepnf" / "fenicsx"
+
+
+def test_installed_default_xdg_is_home_cache(env, monkeypatch):
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(env / "home"))
+    assert _compat.cache_dir() == env / "home" / ".cache" / "stepnf" / "fenicsx"
+
+
+def test_read_only_home_falls_back_to_temp_with_one_warning(env):
+    xdg = unwritable(env / "xdg")
+    expected = env / "tmp" / f"stepnf-{os.getuid()}" / "fenicsx"
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert _compat.cache_dir() == expected
+        assert _compat.cache_dir() == expected  # resolved once: no second warning
+    assert [type(w.message) for w in caught] == [OutputWarning]
+    text = str(caught[0].message)
+    assert text.startswith(f"form cache: {xdg / 'stepnf' / 'fenicsx'} not writable") and text.endswith(f"using {expected}")
+
+
+@pytest.mark.skipif(ROOT or not hasattr(os, "geteuid"), reason="root writes into a 0o555 folder")
+def test_read_only_xdg_folder_falls_back_to_temp(env):
+    ro = env / "xdg"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        with pytest.warns(OutputWarning, match="not writable"):
+            assert _compat.cache_dir().parent.name == f"stepnf-{os.getuid()}"
+    finally:
+        ro.chmod(0o755)
+
+
+def test_nothing_writable_is_an_error(env, monkeypatch):
+    unwritable(env / "xdg")
+    monkeypatch.setattr(tempfile, "tempdir", str(unwritable(env / "tmp2")))
+    with pytest.raises(OutputError, match="no writable folder for the FEniCSx form cache.*STEPNF_CACHE_DIR"):
+        _compat.cache_dir()
+
+
+def test_quiet_jit_swallows_c_level_output_and_keeps_warnings(env, capfd):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with _compat.quiet_jit():
+            os.write(1, b"gcc chatter on stdout\n")
+            os.write(2, b"gcc chatter on stderr\n")
+            print("python chatter")
+            warnings.warn("kept", UserWarning)
+    assert capfd.readouterr() == ("", "")
+    assert [str(w.message) for w in caught] == ["kept"]
+    print("after")  # the terminal is back
+    assert capfd.readouterr().out == "after\n"
+
+
+def test_quiet_jit_failure_carries_the_compiler_output(env, capfd):
+    with pytest.raises(RuntimeError) as info:
+        with _compat.quiet_jit():
+            os.write(2, b"error: expected ';'\n")
+            print("python side")
+            raise RuntimeError("Failed just-in-time compilation")
+    assert capfd.readouterr() == ("", "")
+    if sys.version_info >= (3, 11):
+        notes = "".join(info.value.__notes__)
+        assert "error: expected ';'" in notes and "python side" in notes
+
+
+SCENE = """
+[model]
+solver = "fenicsx"
+element = "hex27"
+geometry = { shape = "spherical_cap", a = 0.15, R = 0.5, h = 0.003, n_core = 2, n_ring = 1 }
+material = { E = 1.04e11, nu = 0.3, rho = 4400.0 }
+[analysis]
+master_modes = [0]
+methods = ["dnf"]
+retained_modes = 4
+[output]
+dir = "out"
+plot = false
+"""
+
+
+def test_first_compilation_prints_nothing_but_stepnf_lines(env, monkeypatch, capfd):
+    cache = env / "empty-cache"
+    monkeypatch.setenv("STEPNF_CACHE_DIR", str(cache))
+    scene = env / "tiny.toml"
+    scene.write_text(SCENE)
+    assert main(["run", str(scene)]) == 0
+    out, err = capfd.readouterr()
+    assert list((cache / "fenicsx").glob("*.so")), "no compilation happened"
+    assert not (env / "xdg").exists()  # elements too are compiled into the stepnf cache
+    assert err and all(line.startswith("[stepnf] ") for line in err.splitlines()), err
+    first = out.splitlines()
+    assert first[0].startswith("stepnf: fenicsx") and first[-1].startswith("results: "), out
+    for word in ("gcc", "build_ext", "cffi", "ffcx", "####", "warning"):
+        assert word not in out.lower() + err.lower()
+
+
+def test_read_only_install_compiles_into_temp_with_one_note(env, capfd):
+    unwritable(env / "xdg")
+    scene = env / "tiny.toml"
+    scene.write_text(SCENE)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", OutputWarning)  # the filters of a plain run otherwise
+        assert main(["run", str(scene), "--quiet"]) == 0
+    out, err = capfd.readouterr()
+    assert list((env / "tmp" / f"stepnf-{os.getuid()}" / "fenicsx").glob("*.so"))
+    notes = [str(w.message) for w in caught] + [line for line in err.splitlines() if line]
+    assert len(notes) == 1 and "form cache:" in notes[0] and "not writable" in notes[0], notes
+    assert "py.warnings" not in err and "Traceback" not in err

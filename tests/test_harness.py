@@ -1,0 +1,172 @@
+"""The conformance harness can fail: each check catches the defect it is for and reports checks that do
+not apply as skipped (with the reason), not passed."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from stepnf.adapter import SolverAdapter
+from stepnf.schema import Key, Schema
+from stepnf.testing import (CheckResult, CheckSkipped, Tolerances, adapter_checks, check_conservative_force,
+                            parametrize_with_checks, run_checks)
+from stepnf_polynomial import PolynomialAdapter
+from systems import random_system
+
+N = 8
+RNG = np.random.default_rng(3)
+_B = RNG.standard_normal((N, N))
+#: a random antisymmetric matrix: f += EPS * A u^3 has the tangent 3 EPS A diag(u^2), not symmetric
+A_ANTI = _B - _B.T
+
+
+class DuffingChain(SolverAdapter):
+    """Masses on a line, each grounded by a spring k0 u + c0 u^3 and coupled to its neighbours by linear
+    springs: f is the gradient of an energy (conservative). Length 1, so the harness's fields are ~0.1."""
+
+    model_keys = Schema(Key("n", "integer", "number of masses", default=N, lo=2),
+                        Key("c0", "number", "cubic ground stiffness", default=1.0, lo=0))
+
+    def __init__(self, n: int = N, c0: float = 1.0):
+        self.n, self.c0 = n, c0
+        main = np.full(n, 2.0 + 1.0)
+        self.K = sp.diags([main, -np.ones(n - 1), -np.ones(n - 1)], [0, 1, -1], format="csr")
+
+    @property
+    def n_dofs(self):
+        return self.n
+
+    def mass_matrix(self):
+        return sp.identity(self.n, format="csr")
+
+    def stiffness_matrix(self):
+        return self.K
+
+    def _internal_force(self, u):
+        return self.K @ u + self.c0 * u**3
+
+    def dof_coordinates(self):
+        return np.column_stack([np.arange(self.n, dtype=float), np.zeros(self.n), np.zeros(self.n)])
+
+    def dof_directions(self):
+        return np.ones(self.n, dtype=int)  # uy: transverse
+
+    def characteristic_length(self):
+        return 1.0
+
+
+class NonConservativeChain(DuffingChain):
+    """The chain plus EPS * A u^3 (A antisymmetric): f(0) = 0, slope K and batch = loop all still hold."""
+
+    eps = 0.1
+
+    def _internal_force(self, u):
+        return super()._internal_force(u) + self.eps * A_ANTI @ u**3
+
+
+class ShortDirections(DuffingChain):
+    def dof_directions(self):
+        return np.ones(self.n - 1, dtype=int)
+
+
+class NoGeometry(DuffingChain):
+    def dof_coordinates(self):
+        return None
+
+    def dof_directions(self):
+        return None
+
+
+M, K, G, H = random_system(6, seed=4)
+
+
+def statuses(make, tol=None):
+    return {r.name: r.status for r in run_checks(make, tol)}
+
+
+@parametrize_with_checks(DuffingChain)
+def test_duffing_chain_conforms(check):
+    assert check().status == "passed"
+
+
+def test_polynomial_adapter_passes_or_skips_with_reasons():
+    res = {r.name: r for r in run_checks(lambda: PolynomialAdapter(M, K, G, H))}
+    assert res["conservative_force"].status == "passed"
+    assert res["dof_coordinates"].status == "skipped" and "no dof coordinates" in res["dof_coordinates"].reason
+    assert all(r.status in ("passed", "skipped") for r in res.values()), res
+
+
+def test_non_conservative_force_fails_only_the_conservativeness_check():
+    st = statuses(NonConservativeChain)
+    assert st.pop("conservative_force") == "failed"
+    assert st.pop("step_equals_intrusive") == "skipped"
+    assert set(st.values()) == {"passed"}, st
+
+
+@pytest.mark.parametrize("eps", [1e-2, 1e-4])
+def test_small_non_conservative_terms_are_caught(eps):
+    # the asymmetry measured is ~eps/c0 relative to the nonlinear tangent (round-off ~1e-14), far above
+    # the default 1e-6; even eps = 1e-4 of the conservative cubic term is caught
+    bad = NonConservativeChain()
+    bad.eps = eps
+    with pytest.raises(AssertionError, match="not conservative"):
+        check_conservative_force(bad, Tolerances())
+
+
+def test_wrong_length_of_dof_directions_fails():
+    st = statuses(ShortDirections)
+    assert st["dof_directions"] == "failed" and st["dof_coordinates"] == "passed"
+    res = {r.name: r for r in run_checks(ShortDirections)}
+    assert "expected (8,)" in res["dof_directions"].reason
+
+
+def test_out_of_range_direction_codes_fail():
+    class BadCodes(DuffingChain):
+        def dof_directions(self):
+            return np.full(self.n, 6)
+
+    assert statuses(BadCodes)["dof_directions"] == "failed"
+
+
+def test_checks_that_do_not_apply_are_skipped_with_a_reason():
+    res = {r.name: r for r in run_checks(NoGeometry)}
+    for name in ("dof_coordinates", "dof_directions", "step_equals_intrusive"):
+        assert res[name].status == "skipped" and res[name].reason, res[name]
+    # under pytest a check that does not apply is a skipped test (pytest.skip), not a pass
+    checks = dict(adapter_checks(NoGeometry))
+    with pytest.raises(pytest.skip.Exception, match="no dof coordinates"):
+        checks["dof_coordinates"]()
+    assert checks["zero_force"]() == CheckResult("zero_force", "passed")
+
+
+def test_broken_default_of_a_declared_key_fails():
+    class BadDefault(DuffingChain):
+        model_keys = Schema(Key("order", "integer", "element order", default=7, lo=1, hi=4))
+
+    res = {r.name: r for r in run_checks(BadDefault, only=["model_keys"])}
+    assert res["model_keys"].status == "failed" and "order" in res["model_keys"].reason
+
+
+def test_a_non_symmetric_tangent_stiffness_fails():
+    class WithTangent(DuffingChain):
+        provides_tangent_stiffness = True
+        skew = 0.0
+
+        def tangent_stiffness(self, u):
+            return self.K + sp.diags(3 * self.c0 * u**2) + self.skew * sp.csr_matrix(A_ANTI * (u @ u))
+
+    good = WithTangent()
+    check_conservative_force(good, Tolerances())
+    bad = WithTangent()
+    bad.skew = 0.1
+    with pytest.raises(AssertionError, match="tangent_stiffness"):
+        check_conservative_force(bad, Tolerances())
+
+
+def test_single_dof_skips_conservativeness():
+    with pytest.raises(CheckSkipped, match="single dof"):
+        check_conservative_force(DuffingChain(n=1), Tolerances())
+
+
+def test_conservative_tolerance_follows_the_force_precision():
+    assert Tolerances().conservative_tolerance() == 1e-6
+    assert Tolerances(batch=1e-6).conservative_tolerance() == pytest.approx(1e-3)
+    assert Tolerances(conservative=1e-4).conservative_tolerance() == 1e-4
