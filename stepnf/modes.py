@@ -24,7 +24,7 @@ from .modal import degenerate_groups, modal_analysis, orient_degenerate, probe_v
 from .modal_model import ModalModel
 from .plan import check_elastic_modes, check_rigid_count
 from .progress import Progress
-from .registry import get_solver
+from .registry import build_model, get_solver
 from .results import label_json, label_text
 from .scene import Scene
 
@@ -88,13 +88,13 @@ def modal_survey(scene: Scene, n: int | None = None, progress: Progress | None =
     cls = get_solver(scene.solver)
     if issubclass(cls, ModalModel):
         with progress.stage("model", f"building the {scene.solver} model"):
-            model = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+            model = build_model(scene)
         try:
             return _modal_model_survey(scene, model, n)
         finally:
             model.close()
     with progress.stage("model", f"setting up the {scene.solver} model"):
-        adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        adapter = build_model(scene)
     try:
         return _adapter_survey(scene, adapter, n, progress)
     finally:

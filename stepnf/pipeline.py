@@ -33,7 +33,7 @@ from .modal import (ModalBasis, lambda_scale, modal_analysis, orient_degenerate,
 from .modal_model import ModalModel
 from .plan import check_elastic_modes, check_mechanism, check_rigid_count, resolve_masters, resolve_methods
 from .progress import Progress
-from .registry import get_solver
+from .registry import build_model, get_solver
 from .results import ModeResult, RunResult, write_hdf5
 from .scene import Scene
 from .step import ForceEvaluator, full_step, step_amplitude, targeted_steps, targeted_steps_tangent
@@ -121,13 +121,13 @@ def _compute(scene: Scene, progress: Progress, writing: bool) -> tuple[RunResult
     checkpoint = None
     if issubclass(cls, ModalModel):
         with progress.stage("model", f"building the {scene.solver} model"):
-            model = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+            model = build_model(scene)
         try:
             return _run_modal_model(scene, model, progress), None
         finally:
             model.close()
     with progress.stage("model", f"setting up the {scene.solver} model"):
-        adapter = cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        adapter = build_model(scene)
     # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
     # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
     if writing and not adapter.collective:

@@ -16,10 +16,10 @@ import functools
 import warnings
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
-from typing import Iterable
+from typing import Any, Iterable
 
 from .adapter import SolverAdapter, implements_forces
-from .errors import UnknownSolverError
+from .errors import AdapterError, StepnfError, UnknownSolverError
 from .modal_model import ModalModel
 
 GROUP = "stepnf.solvers"
@@ -124,3 +124,23 @@ def get_solver(name: str) -> type:
     if name not in solvers:
         raise UnknownSolverError(name, solvers)
     return solvers[name].cls
+
+
+def build_model(scene: Any) -> Any:
+    """The scene's adapter or modal model: ``from_config`` of its solver (``scene.solver``, ``.model``,
+    ``.base_dir``, ``.file``, as :class:`stepnf.scene.Scene` holds them).
+
+    stepnf's own errors pass through (a SceneError names the key); anything else an adapter raises
+    while it builds its model (a bug, or an input its constructor did not check) becomes an
+    :class:`~stepnf.errors.AdapterError` naming the adapter, its class and the scene (exit code 3),
+    never a bare traceback.
+    """
+    cls = get_solver(scene.solver)
+    try:
+        return cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+    except StepnfError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a third-party constructor may raise anything
+        where = str(scene.file) if scene.file else "<scene>"
+        raise AdapterError(f"{where}: the {scene.solver!r} adapter ({cls.__module__}.{cls.__qualname__}) failed "
+                           f"while building the model: {type(exc).__name__}: {exc}") from exc

@@ -332,3 +332,26 @@ def test_calculix_corrupt_results(tmp_path, capsys, action, target):
     folders = [p for p in (tmp_path / "work").iterdir() if p.name.startswith(f"calculix-{stem}-")]
     assert folders and any((p / "solver.log").is_file() for p in folders), "work folder not kept"
     assert not (tmp_path / "out" / "c.h5").exists()
+
+
+# ------------------------------------------------------------------ an adapter whose constructor fails
+class BrokenConstructor(PolynomialAdapter):
+    """A third-party adapter whose constructor trips on something it did not check."""
+
+    model_keys = PolynomialAdapter.model_keys
+
+    @classmethod
+    def from_config(cls, config, *, base_dir, scene_file=None):
+        return {}["mesh"]  # a KeyError deep in the adapter's own code
+
+
+def test_constructor_exception_names_the_adapter_and_the_scene(tmp_path, capsys, monkeypatch):
+    M, K, G, H = random_system(N, seed=2)
+    save_system(tmp_path / "s.npz", M, K, G, H)
+    s = scene(tmp_path)
+    use_solver(monkeypatch, lambda name: BrokenConstructor)
+    o = run_cli(["run", s, "-q"], capsys)
+    # exit 3 (an adapter failure, not a bug of stepnf: 1), the adapter's class and the scene named
+    assert_reported(o, codes=(3,), mentions=[str(s), "'polynomial' adapter", "BrokenConstructor",
+                                             "failed while building the model", "KeyError"])
+    assert not (tmp_path / "out").exists()  # the folder this run made is removed again
