@@ -46,6 +46,12 @@ def resolve_masters(scene: Scene, labels: Sequence[Any], n_modes: int, *, comple
         want = parse_label(m) or m
         hits = [s for s, lab in enumerate(labels) if _label_matches(lab, want)]
         if not hits:
+            if complete and not any(x is not None for x in labels):
+                raise SceneError(scene.file, f"analysis.master_modes[{i}]",
+                                 f"{m!r} is a mode label, but the {scene.solver} model gives no labels ((k, n) "
+                                 "labels exist for axisymmetric structures: generated caps, a mesh with "
+                                 "model.geometry a, R, h, the von Karman model); give a 0-based mode index "
+                                 "(`stepnf modes` lists them)")
             if complete:
                 found = sorted({label_text(x) for x in labels if x is not None},
                                key=lambda t: (len(t), t))

@@ -136,3 +136,21 @@ def test_three_routes_against_the_closed_form(routes):
     # the two CalculiX routes are the same ccx model: the same numbers (7 printed digits of the forces)
     (w1, r1), (w2, r2) = routes["calculix mesh"], routes["calculix deck"]
     assert w1 == pytest.approx(w2, rel=1e-10) and r1.T == pytest.approx(r2.T, rel=1e-8)
+
+
+@pytest.mark.fenicsx
+def test_a_beam_has_no_nk_labels(tmp_path):
+    """A straight beam from a user's mesh (no axis, no a, R, h) gets no (k, n) labels; a label asked for
+    is refused saying so, after the one eigen-solve and before any STEP."""
+    pytest.importorskip("stepnf_fenicsx")
+    from stepnf.errors import SceneError
+
+    text = (REPO / "examples" / "beam" / "beam_fenicsx.toml").read_text().replace("master_modes = [0]",
+                                                                                 'master_modes = ["(0,2)"]')
+    text = text.replace('"../beam_ccx/beam_mesh.inp"', f'"{BEAM / "beam_mesh.inp"}"')
+    (tmp_path / "beam.toml").write_text(text)
+    sc = load_scene(tmp_path / "beam.toml")
+    sc.write_hdf5 = False
+    with pytest.raises(SceneError, match=r"gives no labels .*0-based mode index") as info:
+        run_scene(sc)
+    assert info.value.key == "analysis.master_modes[0]"

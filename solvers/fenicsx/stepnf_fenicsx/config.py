@@ -46,9 +46,11 @@ the cells no set names. Every material is St Venant-Kirchhoff (``S = C : E``).
 With ``mesh``, ``[model.geometry]`` may still give ``a``, ``R``, ``h``
 (without ``shape``) so that shell scales, Gamma and mode labels are
 available; the mesh must then be placed like the generator's caps (apex at
-the origin, centre of curvature at ``(0, 0, -R)``, axis ``z``). Without them,
-labels use ``e_z`` as the normal and every node as the mid-surface (fine for
-plates), and the characteristic length is the smallest bounding-box extent.
+the origin, centre of curvature at ``(0, 0, -R)``, axis ``z``). Without them
+the modes have no labels ((k, n) means something only about an axis: give
+master modes by index, ``stepnf modes`` lists them), Gamma needs ``[analysis]
+thickness`` and ``transverse``, and the characteristic length is the smallest
+bounding-box extent.
 
 Allowed ranges (with their reasons) of the material, geometry and resolution
 keys are those of every cap model, in :mod:`stepnf.geometry.keys` (e.g. h >=

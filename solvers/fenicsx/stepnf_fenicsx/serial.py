@@ -241,6 +241,8 @@ class FenicsxAdapter(FormsAdapter):
         """(k, n) of each mode; with the rim held (:meth:`edge_is_held`) n counts the edge as a nodal circle
         (:mod:`stepnf_fenicsx.labels`)."""
         Phi = np.asarray(Phi, dtype=float)
+        if self.geometry is None:  # a user's mesh without a, R, h: no axis, (k, n) would mean nothing
+            return [None] * Phi.shape[1]
         if self._labeler is None:
             mid = self._midsurface_nodes()
             radius = float(self.geometry["a"]) if self.geometry else float(
