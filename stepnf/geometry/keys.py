@@ -16,7 +16,6 @@ from typing import Any, Mapping
 
 from ..errors import SceneError
 from ..materials import MATERIAL as ANY_MATERIAL
-from ..materials import MATERIAL_RANGE
 from ..schema import Key, Schema
 from .cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
 
@@ -44,15 +43,10 @@ CORE_RANGE = (0.0, 1.0 / math.sqrt(2.0))  # open interval: the core square must 
 MAX_CAP_DOFS = 2_000_000
 
 _LENGTH = dict(lo=LENGTH_RANGE[0], hi=LENGTH_RANGE[1], why=" (a length in model units)")
-_MATERIAL = dict(lo=MATERIAL_RANGE[0], hi=MATERIAL_RANGE[1], why=" (in the model's consistent units)")
 
 #: ``[model.material]``: a linear elastic isotropic material (all three keys, unless the adapter
 #: reads the material from the user's own deck).
-MATERIAL = Schema(
-    Key("E", "number", "Young's modulus", **_MATERIAL),
-    Key("nu", "number", "Poisson's ratio", lo=-1.0, hi=0.5, lo_open=True, hi_open=True, why=" (Poisson's ratio)"),
-    Key("rho", "number", "density (mass per volume)", **_MATERIAL),
-)
+MATERIAL = Schema(*(ANY_MATERIAL[k] for k in MATERIAL_KEYS))  # the isotropic keys of stepnf.materials
 #: ``[model.geometry]`` of the three a, R, h (the shell scaling of a user's mesh, and of every cap).
 CAP_DIMENSIONS = Schema(
     Key("a", "number", "projected outer radius", **_LENGTH),

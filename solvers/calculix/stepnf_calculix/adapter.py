@@ -301,15 +301,12 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         return self.free_part(F.reshape(m, -1))
 
     def _matrices(self) -> None:
-        if self._K is not None:
-            return
-        t0 = time.perf_counter()
+        """One matrix run (LazyMatrices calls it once, and times it as ``timings["matrices"]``)."""
         with self.work_folder(prefix="calculix-matrices-") as wd:
             argv = self._write_job(wd, "matrices", self.matrix_template.render(), "K and M (matrix storage)")
             rec = self.run(argv, wd)
             K, M = self._read_stored_matrices(wd, "matrices", rec.log)
             self._K, self._M = self.free_part(K), self.free_part(M)
-        self.timings["matrices"] = time.perf_counter() - t0
 
     def _read_stored_matrices(self, wd: Path, job: str, log: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
         """K and M of a ``SOLVER=MATRIXSTORAGE`` run, over every nodal dof in this adapter's order.

@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 import shlex
 import shutil
-import time
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
@@ -303,9 +302,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         return self.free_part(F)
 
     def _matrices(self) -> None:
-        if self._K is not None:
-            return
-        t0 = time.perf_counter()
+        """One matrix run (LazyMatrices calls it once, and times it as ``timings["matrices"]``)."""
         with self.work_folder(prefix="code_aster-matrices-") as wd:
             self._write_model(wd)
             argv = self.render_job(wd, "matrices")
@@ -313,7 +310,6 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             (npz,) = require_files(wd, ["matrices.npz"], log=rec.log, what="code_aster")
             K, M = self._read_matrices(npz, wd)
             self._K, self._M = self.free_part(K), self.free_part(M)
-        self.timings["matrices"] = time.perf_counter() - t0
 
     def _read_matrices(self, path: Path, workdir: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
         with np.load(path, allow_pickle=False) as z:
