@@ -3,13 +3,24 @@
 # (FEniCSx, CalculiX, numpy/scipy/h5py built against them), then a virtual
 # environment .venv that sees them (--system-site-packages) with stepnf and its
 # solver adapters installed in editable mode. Fast when already done.
+#   bash scripts/setup.sh          what the main job needs
+#   bash scripts/setup.sh tests    and what the test suite drives besides: debootstrap and
+#                                  podman (root file systems and container images built by the
+#                                  slow image tests), python3-vtk9 (the VTK reader of ParaView,
+#                                  which reads the field files back)
 set -euo pipefail
+case "${1:-}" in
+  "") with_tests=0 ;;
+  tests) with_tests=1 ;;
+  *) echo "setup: unknown argument '$1' (allowed: nothing, or 'tests')" >&2; exit 2 ;;
+esac
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 
 apt_packages=(python3-venv python3-setuptools python3-wheel python3-numpy python3-scipy python3-h5py
   python3-matplotlib python3-meshio python3-pytest python3-dask python3-distributed
   python3-dolfinx-real calculix-ccx)
+if [ "$with_tests" -eq 1 ]; then apt_packages+=(debootstrap podman python3-vtk9); fi
 missing=()
 for p in "${apt_packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
