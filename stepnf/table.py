@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 
 from .results import RunResult, label_text
+from .trust import unusable_reason
 
 
 def _num(x: float | None, fmt: str = "{:+.4e}") -> str:
@@ -15,7 +16,12 @@ def _num(x: float | None, fmt: str = "{:+.4e}") -> str:
 
 
 def format_table(res: RunResult) -> str:
-    """One row per master mode and method: T, Gamma, behaviour, rho, flags."""
+    """One row per master mode and method: T, Gamma, behaviour, rho, flags.
+
+    A T the tool knows to be wrong (:mod:`stepnf.trust`) is shown as ``n/a``,
+    with its Gamma and behaviour, and the reason is printed under the table;
+    the JSON document and the HDF5 file keep the number.
+    """
     lines = []
     head = res.model.get("adapter") or res.model.get("model") or ""
     kappa = f"   kappa = {res.kappa:.4g}" if res.kappa is not None else ""
@@ -24,7 +30,7 @@ def format_table(res: RunResult) -> str:
     cols = ["mode", "label", "omega", "w_bar", "rho", "method", "T", "Gamma" if has_gamma else None,
             "behaviour", "flags"]
     cols = [c for c in cols if c]
-    rows = []
+    rows, unusable = [], []
     for m in res.modes:
         first = True
         for name, r in m.methods.items():
@@ -33,10 +39,14 @@ def format_table(res: RunResult) -> str:
             row = [str(m.index) if first else "", label_text(m.label) if first else "",
                    _num(m.omega, "{:.6g}") if first else "",
                    _num(m.omega_bar, "{:.4f}") if first else "",
-                   _num(m.rho, "{:.3f}") if first else "", name, _num(r.T)]
-            if has_gamma:
-                row.append(_num(r.gamma, "{:+.4f}"))
-            row += [r.behaviour, flags or "-"]
+                   _num(m.rho, "{:.3f}") if first else ""]
+            reason = unusable_reason(r)
+            if reason:
+                unusable.append((m.index, name, reason))
+                row += [name, "n/a"] + (["n/a"] if has_gamma else []) + ["n/a", flags or "-"]
+            else:
+                row += [name, _num(r.T)] + ([_num(r.gamma, "{:+.4f}")] if has_gamma else [])
+                row += [r.behaviour, flags or "-"]
             rows.append(row)
             first = False
     widths = [max(len(c), *(len(r[i]) for r in rows)) if rows else len(c) for i, c in enumerate(cols)]
@@ -49,9 +59,14 @@ def format_table(res: RunResult) -> str:
                  f"; total {res.timings.get('total', 0.0):.2f} s")
     for f in res.flags:
         lines.append(f"note: {f['message']}")
+    shown = {(i, name) for i, name, _ in unusable}
+    for i, name, reason in unusable:
+        lines.append(f"n/a [{i} {name}]: {reason} (the JSON document and the HDF5 file keep the number)")
     for m in res.modes:
-        for r in m.methods.values():
+        for name, r in m.methods.items():
             for f in r.flags:
+                if (m.index, name) in shown and f.get("kind") == "modal_truncation":
+                    continue  # said by its n/a line
                 if f.get("kind", "").startswith("internal_resonance") or f.get("kind") in (
                         "step_accuracy", "modal_truncation"):
                     lines.append(f"flag [{m.index} {r.method}]: {f['message']}")

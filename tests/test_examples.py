@@ -7,6 +7,7 @@ converged to 1e-7). The 3D solid includes transverse shear, rotary and
 in-plane inertia that the plate theory leaves out, so agreement is expected
 to about 1% for the first modes and a few % for higher ones (issue 3: 2%).
 """
+import json
 import math
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from stepnf.evaluators import nf_modal
 from stepnf.models.vonkarman import VonKarmanShell
 from stepnf.pipeline import run_scene
 from stepnf.scene import load_scene
+from stepnf.table import format_table
 
 pytestmark = [pytest.mark.fenicsx, pytest.mark.slow]
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -59,6 +61,12 @@ def test_plate_example(tmp_path):
         # modal NF over 20 transverse modes misses the in-plane part of G entirely: flagged
         assert any(f["kind"] == "modal_truncation" for f in m.methods["nf"].flags)
     assert Path(res.hdf5_path).exists()
+    # issue 13: the printed table shows those NF numbers as n/a with the reason; JSON keeps them
+    table = format_table(res)
+    nf_rows = [line.split() for line in table.splitlines() if " nf " in f" {line} " and "n/a" in line]
+    assert len(nf_rows) == len(modes), table
+    assert table.count("n/a [") == len(modes) and "G(phi_p, phi_p)" in table
+    assert all(isinstance(m["methods"]["nf"]["T"], float) for m in json.loads(res.to_json())["modes"])
 
 
 STORED_K25 = {  # DNF Gamma of examples/shell_kappa25.toml (38k dofs), this code, for regression
