@@ -16,7 +16,6 @@ modal NF fails on a 3D model). Two cases are known wrong, not merely uncertain:
 """
 from __future__ import annotations
 
-
 from .backbone import MethodResult
 
 #: Below this share of G(phi_p, phi_p) carried by the retained modes, a modal-sum T is not shown.
