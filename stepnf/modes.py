@@ -22,7 +22,7 @@ from .errors import SceneError
 from .linalg import choose_backend
 from .modal import degenerate_groups, modal_analysis, orient_degenerate, probe_vector, rigid_body_fields
 from .modal_model import ModalModel
-from .plan import check_elastic_modes, check_rigid_count
+from .plan import check_elastic_modes, check_rigid_count, resolve_masters
 from .progress import Progress
 from .registry import build_model, get_solver
 from .results import label_json, label_text
@@ -44,6 +44,8 @@ class ModeSurvey:
     n_rigid: int = 0
     n_dofs: int | None = None
     eigensolver: str = ""
+    masters: list[int] = field(default_factory=list)  # the scene's master modes among those listed
+    masters_note: str | None = None  # why the scene's master modes could not all be placed
 
     @property
     def n_modes(self) -> int:
@@ -62,10 +64,12 @@ class ModeSurvey:
             rec["energy"] = ({d: float(s[i]) for d, s in self.energy.items()}
                              if self.energy is not None else None)
             rec["degenerate_with"] = [j for g in self.degenerate_groups if i in g for j in g if j != i]
+            rec["master"] = i in self.masters
             modes.append(rec)
         return {"solver": self.solver, "n_dofs": self.n_dofs, "n_rigid": self.n_rigid,
                 "eigensolver": self.eigensolver, "labels": self.has_labels,
-                "degenerate_groups": self.degenerate_groups, "modes": modes}
+                "degenerate_groups": self.degenerate_groups, "masters": self.masters,
+                "masters_note": self.masters_note, "modes": modes}
 
     def to_json(self, **kw: Any) -> str:
         return json.dumps(self.to_dict(), allow_nan=False, **kw)
@@ -77,7 +81,13 @@ def _too_many(scene: Scene, n: int, available: int, why: str) -> SceneError:
 
 
 def modal_survey(scene: Scene, n: int | None = None, progress: Progress | None = None) -> ModeSurvey:
-    """The first ``n`` elastic modes (default: up to :data:`DEFAULT_MODES`) of ``scene``'s model.
+    """The first ``n`` elastic modes of ``scene``'s model.
+
+    Without ``n``: :data:`DEFAULT_MODES`, or more until the scene's master
+    modes (indices or labels) are all among them, as ``stepnf run`` would
+    find them; they are marked in the listing. A master the model does not
+    have is said in ``masters_note``, not raised: the listing is how to find
+    the right one.
 
     An ``n`` beyond the model's dofs minus its rigid-body modes is a :class:`SceneError` (exit 2),
     refused before the eigen-solve when the count is known then.
@@ -101,18 +111,39 @@ def modal_survey(scene: Scene, n: int | None = None, progress: Progress | None =
         adapter.close()
 
 
+def _placed_masters(scene: Scene, labels: list[Any], n_modes: int, complete: bool
+                    ) -> tuple[list[int] | None, str | None]:
+    """The scene's master modes among ``n_modes``: (indices, None); (None, None) while more modes are
+    needed (``complete=False``); ([], why) when they cannot be placed (the survey says why, it does not stop)."""
+    try:
+        return resolve_masters(scene, labels, n_modes, complete=complete), None
+    except SceneError as exc:
+        where = f"[{exc.key}]: " if exc.key else ""
+        return [], where + exc.message
+
+
+def _listed(n: int | None, masters: list[int], available: int) -> int:
+    """How many modes to list: ``n``, else the default or up to the highest master."""
+    if n is not None:
+        return min(n, available)
+    return min(max(DEFAULT_MODES, max(masters, default=-1) + 1), available)
+
+
 def _modal_model_survey(scene: Scene, model: ModalModel, n: int | None) -> ModeSurvey:
     omega = np.asarray(model.omegas(), dtype=float)
     m = len(omega)
     if n is not None and n > m:
         raise _too_many(scene, n, m, f"the {scene.solver} model")
-    k = min(n or DEFAULT_MODES, m)
-    labels = list(model.labels())[:k]
+    all_labels = list(model.labels())
+    masters, note = _placed_masters(scene, all_labels, m, complete=True)
+    k = _listed(n, masters or [], m)
+    labels = all_labels[:k]
     scales = model.shell_scales()
     groups = [g for g in degenerate_groups(omega, scene.degeneracy_tolerance) if min(g) < k]
     return ModeSurvey(solver=scene.solver, omega=omega[:k], labels=labels,
                       omega_bar=[scales.omega_bar(w) for w in omega[:k]] if scales is not None else None,
-                      degenerate_groups=groups, eigensolver="modal model")
+                      degenerate_groups=groups, eigensolver="modal model",
+                      masters=[i for i in masters or [] if i < k], masters_note=note)
 
 
 def _adapter_survey(scene: Scene, adapter: Any, n: int | None, progress: Progress) -> ModeSurvey:
@@ -132,27 +163,35 @@ def _adapter_survey(scene: Scene, adapter: Any, n: int | None, progress: Progres
     if smooth is not None:
         check_conditioning(conditioning_ratio(smooth, K, M))
     eig = adapter.eigenmodes if adapter.provides_eigenmodes else None
+
+    def enough(b: Any) -> bool:  # without -n: on until the scene's master modes are all found
+        if n is not None:
+            return True
+        return _placed_masters(scene, list(adapter.mode_labels(b.phi)), b.n_elastic, complete=False)[0] is not None
+
     with progress.stage("eigen", "modal analysis"):
         basis = modal_analysis(K, M, k, rigid_tolerance=scene.rigid_tolerance, rigid_modes=scene.rigid_modes,
                                degeneracy_tolerance=scene.degeneracy_tolerance,
                                max_modes=max(scene.max_modes, k + 8),
-                               backend=choose_backend(ndof, scene.linear_solver),
+                               backend=choose_backend(ndof, scene.linear_solver), enough=enough,
                                eigensolver=eig, rigid_candidates=cands, progress=progress.message)
     check_elastic_modes(scene, basis)
     n_rigid = int(basis.rigid.shape[1])
     if n is not None and basis.n_elastic < n:
         raise _too_many(scene, n, basis.n_elastic, f"the model ({ndof} dofs, {n_rigid} rigid-body modes)")
     orient_degenerate(basis, M, probe_vector(X, dirs, ndof))
-    k = min(k, basis.n_elastic)
+    all_labels = list(adapter.mode_labels(basis.phi))
+    masters, note = _placed_masters(scene, all_labels, basis.n_elastic, complete=True)
+    k = _listed(n, masters or [], basis.n_elastic)
     phi = basis.phi[:, :k]
-    labels = list(adapter.mode_labels(basis.phi))[:k]
+    labels = all_labels[:k]
     scales = adapter.shell_scales()
     omega = basis.omega[:k]
     return ModeSurvey(solver=scene.solver, omega=omega, labels=labels,
                       omega_bar=[scales.omega_bar(w) for w in omega] if scales is not None else None,
                       energy=kinetic_shares(phi, M, dirs), n_rigid=n_rigid, n_dofs=ndof,
                       degenerate_groups=[g for g in basis.degenerate_groups if min(g) < k],
-                      eigensolver=basis.solver)
+                      eigensolver=basis.solver, masters=[i for i in masters or [] if i < k], masters_note=note)
 
 
 def kinetic_shares(phi: np.ndarray, M: Any, dirs: np.ndarray | None) -> dict[str, np.ndarray] | None:
@@ -171,6 +210,7 @@ def format_survey(s: ModeSurvey) -> str:
     """The human-readable listing of ``stepnf modes``."""
     dirs = list(s.energy) if s.energy is not None else []
     cols = ["mode", "label", "omega"] + (["w_bar"] if s.omega_bar is not None else []) + dirs + ["degenerate"]
+    cols.append("master")
     rows = []
     for i, w in enumerate(s.omega):
         row = [str(i), label_text(s.labels[i]), f"{w:.6g}"]
@@ -179,6 +219,7 @@ def format_survey(s: ModeSurvey) -> str:
         row += [f"{s.energy[d][i]:.3f}" for d in dirs] if s.energy is not None else []
         twins = [j for g in s.degenerate_groups if i in g for j in g if j != i]
         row.append(",".join(str(j) for j in twins) or "-")
+        row.append("*" if i in s.masters else "")
         rows.append(row)
     widths = [max(len(c), *(len(r[j]) for r in rows)) if rows else len(c) for j, c in enumerate(cols)]
     dofs = f", {s.n_dofs} dofs" if s.n_dofs is not None else ""
@@ -193,6 +234,10 @@ def format_survey(s: ModeSurvey) -> str:
         lines.append(f"kinetic-energy shares: - ({what})")
     if not s.has_labels:
         lines.append(f"labels: - (the {s.solver} solver gives no mode labels)")
+    if s.masters:
+        lines.append("master: * marks the scene's master modes")
+    if s.masters_note:
+        lines.append(f"master modes: {s.masters_note}")
     for g in s.degenerate_groups:
         lines.append(f"degenerate: modes {', '.join(str(j) for j in g)} (equal frequencies; "
                      "any combination is a mode)")

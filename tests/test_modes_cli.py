@@ -146,3 +146,27 @@ def test_version(capsys):
         main(["--version"])
     assert exc.value.code == 0
     assert capsys.readouterr().out.strip() == f"stepnf {__version__}"
+
+
+def test_default_listing_reaches_the_scenes_master_modes(tmp_path, capsys):
+    """Without -n the listing goes on until the scene's masters are in it, and marks them."""
+    p = fe_like_scene(tmp_path, n_nodes=6)
+    p.write_text(p.read_text().replace("master_modes = [0, 2]", "master_modes = [0, 14]"))
+    assert main(["modes", str(p), "-q"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line[:1].isdigit()]
+    assert len(rows) == 15, out
+    assert [r[0] for r in rows if r[-1] == "*"] == ["0", "14"]
+    assert "master: * marks the scene's master modes" in out
+    doc = modal_survey(load_scene(p)).to_dict()
+    assert doc["masters"] == [0, 14] and [m["master"] for m in doc["modes"]].count(True) == 2
+
+
+def test_a_master_label_the_model_lacks_is_said_not_raised(tmp_path, capsys):
+    """stepnf modes is how to find the right label: a wrong one is reported under the listing, exit 0."""
+    p = vonkarman_scene(tmp_path)
+    p.write_text(p.read_text().replace('"(2,0)"', '"(40,0)"'))
+    assert main(["modes", str(p), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "master modes: [analysis.master_modes[0]]: no mode is labelled '(40,0)'" in out
+    assert len([line for line in out.splitlines() if line[:1].isdigit()]) == 12
