@@ -1,4 +1,5 @@
-"""Command-line interface: ``stepnf run SCENE``, ``stepnf modes SCENE``, ``stepnf show RESULT.h5``, ``stepnf solvers``.
+"""Command-line interface: ``stepnf run SCENE``, ``stepnf modes SCENE``, ``stepnf show RESULT.h5``, ``stepnf solvers``,
+``stepnf check SCENE`` (the conformance harness on a scene's adapter: exit 3 when a check fails).
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
 solver or numerical failure, or a file that cannot be written; 4 a sweep with
@@ -137,6 +138,15 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
     print(format_table(stored_result(args.file)))
     return 0
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    """``stepnf check SCENE``: the conformance harness on the scene's adapter (:mod:`stepnf.check`)."""
+    from .check import check_scene, format_check
+
+    report = check_scene(args.scene)
+    print(format_check(report))
+    return 3 if report.failed else 0
 
 
 def _positive(text: str) -> int:
@@ -297,6 +307,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_f4.add_argument("--out", default="results/fig4", help="output folder")
     p_f4.add_argument("--n-kappa", type=int, default=300, help="points of the von Karman curves")
     p_f4.set_defaults(func=_cmd_fig4)
+    p_ck = sub.add_parser("check", parents=[common], help="run the adapter conformance checks on a scene's model")
+    p_ck.add_argument("scene", help="scene file (TOML)")
+    p_ck.set_defaults(func=_cmd_check)
     p_sol = sub.add_parser("solvers", parents=[common], help="list the installed solver adapters")
     p_sol.add_argument("--keys", metavar="NAME", help="list the keys the [model] table of solver NAME accepts "
                        "(type, range, default, meaning)")

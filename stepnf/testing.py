@@ -14,21 +14,27 @@ equals ``K`` (central differences, error O(eps^2) for a cubic f); the batch
 equals the loop; STEP recovers the intrusive tensors where the adapter offers
 them; the force is conservative (its tangent at a nonzero field is symmetric,
 probed by finite differences); ``dof_coordinates`` and ``dof_directions`` have
-one finite entry per dof; the declared ``[model]`` keys are well formed.
+one finite entry per dof; the declared ``[model]`` keys are well formed;
+``from_config`` builds the adapter from a ``[model]`` table (the scene's, or the
+documented defaults) and the defaults it documents are the ones it applies.
 Tolerances are relative and can be loosened per adapter for solvers that
 print few digits (CalculiX: 7).
 
 Each check passes, fails (``AssertionError``) or does not apply to the adapter
 (:class:`CheckSkipped`, with the reason; under pytest the test is reported as
 skipped). :func:`run_checks` runs them all outside pytest and returns one
-:class:`CheckResult` (``passed`` / ``failed`` / ``skipped`` and why) per check.
+:class:`CheckResult` (``passed`` / ``failed`` / ``skipped`` and why) per check;
+an exception other than a failed assertion (an adapter raising while it
+computes) is a failed check there, with the exception as the reason.
+``stepnf check SCENE`` (:mod:`stepnf.check`) runs them on a scene's model.
 """
 from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
 import tempfile
-from typing import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -88,8 +94,14 @@ def _maxabs(A) -> float:
     return float(abs(A).max()) if sp.issparse(A) else float(np.max(np.abs(A)))
 
 
-def _random_fields(adapter: SolverAdapter, k: int, seed: int = 1) -> np.ndarray:
-    """Smooth-ish random fields scaled to the characteristic length (small strains)."""
+def _random_fields(adapter: SolverAdapter, k: int, seed: int = 1, per_direction: bool = False) -> np.ndarray:
+    """Smooth random fields scaled to the characteristic length (small strains).
+
+    With dof coordinates: quadratic polynomials of the position; ``per_direction``: with independent
+    coefficients for every direction (:meth:`~stepnf.adapter.SolverAdapter.dof_directions`; without
+    directions, dof ``i`` takes those of ``i % 3``, a node-major guess). The same polynomial in every
+    direction moves every node along (1, 1, 1): every bar of a truss then stretches along one line, and a
+    non-conservative force can look symmetric (:func:`check_conservative_force` asks for them)."""
     rng = np.random.default_rng(seed)
     n = adapter.n_dofs
     L = adapter.characteristic_length() or 1.0
@@ -100,7 +112,19 @@ def _random_fields(adapter: SolverAdapter, k: int, seed: int = 1) -> np.ndarray:
         c = X - X.mean(0)
         span = max(np.ptp(X, axis=0).max(), 1e-300)
         basis = np.column_stack([np.ones(n), c / span, (c / span) ** 2])
-        U = rng.standard_normal((k, basis.shape[1])) @ basis.T
+        if not per_direction:
+            return _scaled(rng.standard_normal((k, basis.shape[1])) @ basis.T, L)
+        dirs = adapter.dof_directions()
+        code = np.arange(n) % 3
+        if dirs is not None and np.shape(dirs) == (n,):  # else check_dof_directions reports it
+            code = np.clip(np.nan_to_num(np.asarray(dirs, dtype=float)), 0, len(DIRECTIONS) - 1).astype(int)
+        coef = rng.standard_normal((k, len(DIRECTIONS), basis.shape[1]))
+        U = np.einsum("kib,ib->ki", coef[:, code, :], basis)
+    return _scaled(U, L)
+
+
+def _scaled(U: np.ndarray, L: float) -> np.ndarray:
+    """Each row of ``U`` scaled to a largest entry of 1% of the length ``L``."""
     return 1e-2 * L * U / np.max(np.abs(U), axis=1, keepdims=True)
 
 
@@ -196,8 +220,8 @@ def check_conservative_force(adapter: SolverAdapter, tol: Tolerances) -> None:
     n = adapter.n_dofs
     if n < 2:
         raise CheckSkipped("a single dof: every tangent is symmetric")
-    u = 10 * _random_fields(adapter, 1, seed=5)[0]
-    V = 10 * _random_fields(adapter, 3, seed=6)
+    u = 10 * _random_fields(adapter, 1, seed=5, per_direction=True)[0]
+    V = 10 * _random_fields(adapter, 3, seed=6, per_direction=True)
     KV = (adapter.stiffness_matrix() @ V.T).T
     limit = tol.conservative_tolerance()
     asym = _asymmetry(V, _nonlinear_products(adapter, u, V, 0.1), KV)
@@ -262,6 +286,81 @@ def check_model_keys(adapter: SolverAdapter, tol: Tolerances) -> None:
     assert not bad, "the declared [model] keys are broken: " + "; ".join(bad)
 
 
+def _documented_defaults(schema: Schema, given: Mapping[str, Any]) -> dict[str, Any]:
+    """The declared defaults of the keys ``given`` leaves out (files and folders excepted: they must exist)."""
+    return {k.name: k.default for k in schema
+            if k.default is not None and k.kind not in ("file", "folder") and k.name not in given}
+
+
+def _same_model(a: SolverAdapter, b: SolverAdapter, tol: Tolerances) -> str:
+    """'' when ``a`` and ``b`` have the same dofs, K, M and force at one field, else what differs."""
+    if a.n_dofs != b.n_dofs:
+        return f"{a.n_dofs} dofs against {b.n_dofs}"
+    for name, A, B in (("K", a.stiffness_matrix(), b.stiffness_matrix()), ("M", a.mass_matrix(), b.mass_matrix())):
+        diff = _maxabs(A - B) / max(_maxabs(A), 1e-300)
+        if diff > tol.batch:
+            return f"{name} differs by {diff:.3e} (relative)"
+    u = _random_fields(a, 1, seed=7)
+    fa, fb = a.internal_forces(u), b.internal_forces(u)
+    diff = float(np.max(np.abs(fa - fb))) / max(float(np.max(np.abs(fa))), 1e-300)
+    return f"the internal force differs by {diff:.3e} (relative)" if diff > tol.batch else ""
+
+
+def check_from_config(adapter: SolverAdapter, tol: Tolerances, config: Mapping[str, Any] | None = None,
+                      base_dir: str | Path | None = None) -> None:
+    """``from_config`` builds an adapter from a ``[model]`` table, and its documented defaults hold.
+
+    The table is ``config`` (a scene's ``[model]`` without ``solver``; paths from ``base_dir``), else the
+    empty one. It must build an adapter (a SceneError for a given table, or any other exception, fails);
+    completed with the defaults the keys *document* (``Key.default``: shown, never applied by stepnf) it
+    must build the same model (dofs, K, M, the force at one field, to ``batch``). Skipped without declared
+    keys, with a required key and no table, or when the defaults alone are refused with a message (checks
+    across keys: "a mesh or a geometry"). Every adapter built is closed.
+    """
+    cls = type(adapter)
+    schema = cls.model_schema()
+    if config is None:
+        if schema is None:
+            raise CheckSkipped(f"{cls.__name__} declares no [model] keys: give the harness a [model] table "
+                               "(config=) to check from_config")
+        required = [k.name for k in schema if k.required]
+        if required:
+            raise CheckSkipped(f"{cls.__name__} has required [model] keys {required}: give the harness a [model] "
+                               "table (config=) to check from_config")
+    table = dict(config or {})
+    with tempfile.TemporaryDirectory() as tmp:
+        base = Path(base_dir) if base_dir is not None else Path(tmp)
+        built: list[SolverAdapter] = []
+
+        def build(cfg: Mapping[str, Any], what: str) -> SolverAdapter:
+            try:
+                model = cls.from_config(cfg, base_dir=base, scene_file=None)
+            except SceneError as exc:
+                if config is None and not built:
+                    raise CheckSkipped(f"the defaults alone make no model ({exc}): give the harness a [model] "
+                                       "table (config=) to check from_config") from None
+                raise AssertionError(f"from_config refused {what}: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 - what a user would meet as an AdapterError
+                raise AssertionError(f"from_config raised {type(exc).__name__} on {what} (a user would get no message "
+                                     f"naming a key): {exc}") from None
+            assert isinstance(model, SolverAdapter), f"from_config returned {type(model).__name__}, not an adapter"
+            built.append(model)
+            assert model.n_dofs >= 1, f"from_config built a model with {model.n_dofs} dofs"
+            return model
+
+        try:
+            first = build(table, f"the [model] table {table}")
+            defaults = _documented_defaults(schema, table) if schema is not None else {}
+            if defaults:
+                full = {**table, **defaults}
+                differs = _same_model(first, build(full, f"the table completed with its documented defaults {full}"), tol)
+                assert not differs, (f"the documented defaults {defaults} are not the ones from_config applies: "
+                                     f"{differs}; make Key(default=...) match the constructor")
+        finally:
+            for model in built:
+                model.close()
+
+
 CHECKS: dict[str, Callable[[SolverAdapter, Tolerances], None]] = {
     "symmetric_matrices": check_symmetric_matrices,
     "zero_force": check_zero_force,
@@ -272,14 +371,23 @@ CHECKS: dict[str, Callable[[SolverAdapter, Tolerances], None]] = {
     "dof_coordinates": check_dof_coordinates,
     "dof_directions": check_dof_directions,
     "model_keys": check_model_keys,
+    "from_config": check_from_config,
 }
+#: Checks that also take the ``[model]`` table (``config``, ``base_dir``) given to the harness.
+_TABLE_CHECKS = ("from_config",)
 
 
 def run_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None,
-               only: Sequence[str] | None = None) -> list[CheckResult]:
-    """Every check (or those named in ``only``) on one adapter, outside pytest: a result per check."""
+               only: Sequence[str] | None = None, *, config: Mapping[str, Any] | None = None,
+               base_dir: str | Path | None = None) -> list[CheckResult]:
+    """Every check (or those named in ``only``) on one adapter, outside pytest: a result per check.
+
+    ``config`` and ``base_dir``: a ``[model]`` table (without ``solver``) for :func:`check_from_config`.
+    A check whose adapter raises (anything but a failed assertion or a skip) is failed, the exception its
+    reason; so is every check when ``make_adapter`` itself raises.
+    """
     out = []
-    for name, check in adapter_checks(make_adapter, tolerances, skip=_raise_skip):
+    for name, check in adapter_checks(make_adapter, tolerances, skip=_raise_skip, config=config, base_dir=base_dir):
         if only is not None and name not in only:
             continue
         try:
@@ -288,6 +396,8 @@ def run_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances
             out.append(CheckResult(name, "skipped", str(exc)))
         except AssertionError as exc:
             out.append(CheckResult(name, "failed", str(exc)))
+        except Exception as exc:  # noqa: BLE001 - the adapter under test may raise anything
+            out.append(CheckResult(name, "failed", f"{type(exc).__name__}: {exc}"))
     return out
 
 
@@ -304,20 +414,22 @@ def _pytest_skip(reason: str) -> None:
 
 
 def adapter_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None,
-                   skip: Callable[[str], None] = _pytest_skip) -> Iterator[tuple[str, Callable[[], CheckResult]]]:
+                   skip: Callable[[str], None] = _pytest_skip, *, config: Mapping[str, Any] | None = None,
+                   base_dir: str | Path | None = None) -> Iterator[tuple[str, Callable[[], CheckResult]]]:
     """Yield ``(name, check)``; each check builds the adapter once (cached) and asserts. A check returns a
     passed :class:`CheckResult`, raises ``AssertionError`` when it fails, and calls ``skip(reason)`` when it
     does not apply (``pytest.skip`` by default, so pytest reports it as skipped, not passed)."""
     tol = tolerances or Tolerances()
     get = functools.lru_cache(maxsize=1)(make_adapter)
+    table = {"config": config, "base_dir": base_dir}
     for name, fn in CHECKS.items():
-        yield name, _bind(name, fn, get, tol, skip)
+        yield name, _bind(name, fn, get, tol, skip, table if name in _TABLE_CHECKS else {})
 
 
-def _bind(name, fn, get, tol, skip):
+def _bind(name, fn, get, tol, skip, extra):
     def check() -> CheckResult:
         try:
-            fn(get(), tol)
+            fn(get(), tol, **extra)
         except CheckSkipped as exc:
             skip(str(exc))
             return CheckResult(name, "skipped", str(exc))
@@ -326,9 +438,11 @@ def _bind(name, fn, get, tol, skip):
     return check
 
 
-def parametrize_with_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None):
-    """A ``pytest.mark.parametrize`` over the conformance checks, one test id per check."""
+def parametrize_with_checks(make_adapter: Callable[[], SolverAdapter], tolerances: Tolerances | None = None, *,
+                            config: Mapping[str, Any] | None = None, base_dir: str | Path | None = None):
+    """A ``pytest.mark.parametrize`` over the conformance checks, one test id per check (``config``,
+    ``base_dir``: a ``[model]`` table for :func:`check_from_config`)."""
     import pytest
 
-    checks = list(adapter_checks(make_adapter, tolerances))
+    checks = list(adapter_checks(make_adapter, tolerances, config=config, base_dir=base_dir))
     return pytest.mark.parametrize("check", [c for _, c in checks], ids=[n for n, _ in checks])
