@@ -61,6 +61,23 @@ def test_rendered_command_files_are_valid_python(tmp_path, job):
     assert argv == ["run_aster", str(wd / f"{job}.export")]
 
 
+def test_calcul_force_route_renders_forces_calcul(tmp_path):
+    """force_route = "calcul": the force job is CALCUL FORC_INTE_ELEM per field (forces_calcul.comm, written as
+    forces.comm with the same .export); the matrices job does not change."""
+    ad = make(tmp_path, force_route="calcul")
+    assert ad.describe()["force_route"] == "calcul"
+    wd = tmp_path / "wd"
+    wd.mkdir()
+    ad.render_job(wd, "forces", n_fields=4)
+    comm = (wd / "forces.comm").read_text()
+    tree = ast.parse(comm)
+    calls = {n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)}
+    assert {"CALCUL", "EXTR_TABLE", "ASSE_VECTEUR", "CREA_RESU", "IMPR_RESU"} <= calls and "STAT_NON_LINE" not in calls
+    assert "n_fields = 4" in comm and 'DEFORMATION="GROT_GDEP"' in comm and "$" not in comm
+    assert "forces.rmed R 80" in (wd / "forces.export").read_text()
+    assert ad.templates["forces_calcul.comm"].source.endswith("templates/forces_calcul.comm")
+
+
 def test_user_templates_and_docker_command(tmp_path):
     (tmp_path / "tpl").mkdir()
     custom = ca.shipped_template("forces.comm").text.replace("ITER_GLOB_MAXI=${max_iterations}",
@@ -141,8 +158,9 @@ def fake_run_aster(tmp_path):
     return exe
 
 
-def test_round_trip_through_fake_run_aster(tmp_path, fake_run_aster):
-    ad = make(tmp_path, command=f"{fake_run_aster} ${{export}}", keep="never")
+@pytest.mark.parametrize("route", ["stat_non_line", "calcul"])
+def test_round_trip_through_fake_run_aster(tmp_path, fake_run_aster, route):
+    ad = make(tmp_path, command=f"{fake_run_aster} ${{export}}", keep="never", force_route=route)
     n = ad.n_dofs
     K_exact = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).toarray()
     K = ad.stiffness_matrix()
@@ -206,6 +224,7 @@ def test_shell_facts_and_user_med_mesh(tmp_path):
     ({"geometry": CAP, "material": {"E": 1.0, "nu": 0.3}}, "model.material.rho"),
     ({"geometry": CAP, "material": MATERIAL, "ncpus": 0}, "model.ncpus"),
     ({"geometry": CAP, "material": MATERIAL, "templates": "nowhere"}, "model.templates"),
+    ({"geometry": CAP, "material": MATERIAL, "force_route": "newton"}, "model.force_route"),
     ({"mesh": "x.inp", "material": MATERIAL}, "model.mesh"),
     ({"material": MATERIAL}, "model"),
 ])

@@ -12,6 +12,16 @@ digits). K and M: ``matrices.comm`` (``ASSEMBLAGE`` of ``RIGI_MECA`` and
 ``MASS_MECA``, exported with ``EXTR_MATR(sparse=True)`` and the dof map to an
 ``.npz``; code_aster >= 16).
 
+``force_route = "calcul"`` (default ``"stat_non_line"``) renders ``forces_calcul.comm`` for
+the force job instead: per field, ``CALCUL(OPTION=("FORC_INTE_ELEM",))`` at ``DEPL`` = 0,
+``INCR_DEPL`` = the field, zero ``SIGM`` and ``VARI``, ``COMPORTEMENT`` ``ELAS``/``GROT_GDEP``
+(one element loop, no Newton iteration and no matrix factorisation, the route of the
+ROM_for_geomNL scripts), ``EXTR_TABLE`` of the elementary vectors, ``ASSE_VECTEUR``, and the
+fields gathered by ``CREA_RESU`` as ``FORC_NODA`` at times 1..n, so the same MED reader
+applies. Both routes' keywords are checked against code_aster 15's command catalogue
+(``tests/test_code_aster_catalogue.py``); the CALCUL route has never been run in code_aster by
+stepnf (no code_aster here), so the default stays the STAT_NON_LINE route.
+
 Scene keys (``[model]``)::
 
     solver = "code_aster"
@@ -34,7 +44,7 @@ groups of volume cells of the MED file (:mod:`stepnf.materials`): written as
 ``${cara_elem}`` (``AFFE_CARA_ELEM`` ``MASSIF`` ``ANGL_REP``) of the templates. Run keys: ``command`` (e.g. ``"docker run --rm -v
 ${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
 (a folder whose ``forces.comm``, ``forces.export``, ``matrices.comm`` or
-``matrices.export`` replace the shipped ones), ``version``, ``ncpus``,
+``matrices.export``, ``forces_calcul.comm`` replace the shipped ones), ``force_route``, ``version``, ``ncpus``,
 ``memory_mb`` (``.export`` parameters), ``timeout``, ``workdir``, ``keep``,
 ``parallel_runs`` (code_aster runs at a time, each on a share of a batch).
 

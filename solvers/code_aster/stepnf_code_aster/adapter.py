@@ -24,6 +24,23 @@ code_aster 17, 2025):
   'ELAS_ORTH', 'ELAS_ISTR')`` with ``deformation`` including ``GROT_GDEP`` in ``3D``: STAT_NON_LINE
   with ``RELATION="ELAS", DEFORMATION="GROT_GDEP"`` stays St Venant-Kirchhoff with orthotropy.
 - ``code_aster/Cata/Commands/assemblage.py``: ``ASSEMBLAGE`` takes ``CARA_ELEM``.
+
+Every command and keyword of every rendered variant (both force routes, the materials above,
+boundary conditions, the matrices job) passed code_aster 15's own checker
+(``code_aster/Cata/Language/SyntaxChecker.py`` ``checkCommandSyntax`` of the ehmoussi/code_aster
+mirror, 15.2, 2020); ``tests/data/code_aster_catalogue.json`` keeps those facts, each with its
+catalogue file, and ``tests/test_code_aster_catalogue.py`` holds the rendered files to them.
+Not in code_aster 15: ``getNodeAndComponentFromDOF`` of the matrix export (>= 16).
+
+Force routes (``force_route``): ``"stat_non_line"`` (``forces.comm``, the default) imposes every
+dof of every node by ``AFFE_CHAR_CINE(EVOL_IMPO=...)`` and lets one ``STAT_NON_LINE`` reach each
+field, then ``CALC_CHAMP(FORCE="FORC_NODA")``; ``"calcul"`` (``forces_calcul.comm``) asks
+``CALCUL`` for ``FORC_INTE_ELEM`` at each field directly (the route of the ROM_for_geomNL
+scripts, which ran it in code_aster 13.4): no Newton loop, no tangent matrix, so less work per
+field, with the same ``ELAS``/``GROT_GDEP`` internal force. ``CALCUL`` needs the previous
+displacement, stress and internal variables for a non-linear option (``calcCalcMeca.F90``,
+``CALCUL1_12``): zero fields made by ``CREA_CHAMP``. That route is checked against the catalogue
+only; it was never run in code_aster by stepnf.
 """
 from __future__ import annotations
 
@@ -52,7 +69,9 @@ from .med import (MedError, add_nodal_field, read_cell_groups, read_groups, read
                   write_med)
 
 ELEMENTS = ("hex20",)
-TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export")
+TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export", "forces_calcul.comm")
+#: ``force_route`` -> the template of the force job (written as ``forces.comm`` in the work folder)
+FORCE_ROUTES = {"stat_non_line": "forces.comm", "calcul": "forces_calcul.comm"}
 COMPONENTS = ("DX", "DY", "DZ")
 #: Default command; ``${export}`` and ``${workdir}`` are filled in. A docker image works too, e.g.
 #: ``docker run --rm -v ${workdir}:${workdir} IMAGE run_aster ${export}``.
@@ -67,6 +86,10 @@ MODEL_KEYS = Schema(
     Key("command", "text", "the command running one job; ${export} and ${workdir} are filled in",
         default=DEFAULT_COMMAND, what="a command"),
     Key("version", "text", "code_aster version of the .export file", default="stable", what="a version name"),
+    Key("force_route", "choice", "how code_aster computes the internal forces: one STAT_NON_LINE with every dof "
+        "imposed (EVOL_IMPO), or CALCUL FORC_INTE_ELEM per field (one element loop, no Newton iteration; checked "
+        "against code_aster's catalogue only, never run by stepnf)", default="stat_non_line",
+        choices=tuple(FORCE_ROUTES)),
     NCPUS, MEMORY_MB, *RUN_KEYS, BOUNDARY_KEY, MATERIALS_KEY,
 )
 FIELD_IN, FIELD_OUT = "U", "F"
@@ -128,7 +151,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                  ncpus: int = 1, memory_mb: int = 4096, geometry: Mapping[str, Any] | None = None,
                  midsurface: np.ndarray | None = None, node_sets: Mapping[str, np.ndarray] | None = None,
                  materials: Mapping[str | None, Material] | None = None,
-                 cell_groups: tuple[int, Mapping[str, np.ndarray]] | None = None, **run: Any):
+                 cell_groups: tuple[int, Mapping[str, np.ndarray]] | None = None, force_route: str = "stat_non_line",
+                 **run: Any):
         cmd = CommandTemplate(command, source="[model] command")
         if not cmd.text.split():
             raise ValueError("empty code_aster command")
@@ -146,6 +170,9 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             raise ValueError(f"code_aster needs the material's {list(MATERIAL_KEYS)}, got {sorted(material)}")
         self.command = cmd
         self.export_values = {"version": version, "ncpus": int(ncpus), "memory_mb": int(memory_mb)}
+        if force_route not in FORCE_ROUTES:
+            raise ValueError(f"force_route {force_route!r}: pick one of {list(FORCE_ROUTES)}")
+        self.force_route = force_route
         self.templates = {name: self._template(name, templates) for name in TEMPLATE_NAMES}
         self.geometry = dict(geometry or {})
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
@@ -178,7 +205,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         if not is_plain(materials):
             key = "model.materials" if named else "model.material"
             asked = "[model.materials] regions" if named else "an orthotropic [model.material]"
-            for job in ("forces.comm", "matrices.comm"):
+            for job in (self._comm("forces"), "matrices.comm"):
                 have = self.templates[job].placeholders
                 if "materials" not in have:
                     raise SceneError(scene_file, key, f"the template {self.templates[job].source} has no ${{materials}} "
@@ -193,6 +220,10 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self.material = ({k: float(default.constants[k]) for k in MATERIAL_KEYS}
                          if default is not None and default.isotropic else {})
         self.material_lines = materials_text(self.materials)
+
+    def _comm(self, job: str) -> str:
+        """The template name of ``<job>.comm`` (the force job follows ``force_route``)."""
+        return FORCE_ROUTES[self.force_route] if job == "forces" else f"{job}.comm"
 
     @staticmethod
     def _template(name: str, folder: str | Path | None) -> CommandTemplate:
@@ -224,7 +255,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d.update(solver="code_aster", command=self.command.text, n_nodes=int(len(self.points)),
-                 material=self.material, solver_runs=len(self.runs),
+                 force_route=self.force_route, material=self.material, solver_runs=len(self.runs),
                  geometry={k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
                            for k, v in self.geometry.items()},
                  templates={k: t.source for k, t in self.templates.items()})
@@ -263,7 +294,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def render_job(self, workdir: Path, job: str, n_fields: int = 0) -> list[str]:
         """Write ``<job>.comm`` and ``<job>.export`` into ``workdir``; return the command."""
         vals = self._values(workdir, job, n_fields)
-        (workdir / f"{job}.comm").write_text(self.templates[f"{job}.comm"].render(vals))
+        (workdir / f"{job}.comm").write_text(self.templates[self._comm(job)].render(vals))
         (workdir / f"{job}.export").write_text(self.templates[f"{job}.export"].render(vals))
         return shlex.split(self.command.render(vals))
 
