@@ -1,0 +1,332 @@
+"""Direct parametrisation of the single-mode invariant manifold (DPIM), conservative, full order.
+
+Vizzaccaro, Opreni, Salles, Frangi, Touze, Nonlinear Dyn. 2022; Opreni et al.
+2023. Model ``M x'' + f(x) = 0``, ``f(x) = K x + G(x, x) + H(x, x, x)``; master
+mode ``phi`` (M-normalised, ``K phi = w^2 M phi``).
+
+**Parametrisation (complex normal form style).** Normal coordinates
+``z1 = (rho/2) e^{i theta}``, ``z2 = conj(z1)``, displacement
+``x = W(z1, z2) = sum W_ab z1^a z2^b`` and reduced dynamics with resonant
+monomials only (``a - b = +-1``)::
+
+    z1' = i z1 Omega(z1 z2),    Omega = w + sum_k c_k rho^(2k)
+
+For a conservative system the resonant coefficients are purely imaginary (so
+``rho`` is constant and ``theta' = Omega(rho)``); the recursion below solves
+every homological equation with this form, which proves it consistent. Then
+``W_ab`` are real and ``W_ab = W_ba``, so the manifold is the cosine series::
+
+    x(theta, rho) = sum_{p=1..N} rho^p sum_{m = p, p-2, ... >= 0} Y[p, m] cos(m theta)
+    W_ab = 2^(p-1) Y[p, a-b]  (a > b),   W_aa = 2^p Y[2a, 0],   p = a + b,   Y[1, 1] = phi
+
+and the velocity parametrisation is ``v = Omega(rho) dx/dtheta``. Since the
+time derivative acts on ``cos(m theta)`` as ``-(m Omega)^2``, invariance
+``M x_tt + f(x) = 0`` at ``rho^p cos(m theta)`` reads (homological equation)::
+
+    (K - (m w)^2 M) Y[p, m] = m^2 sum_{k>=1} S_k M Y[p-2k, m] - F[p, m]
+    S_k = [rho^(2k)] Omega^2 = 2 w c_k + sum_{i+j=k} c_i c_j
+
+``F[p, m]`` the ``cos(m theta)`` coefficient of the ``rho^p`` part of
+``G(x, x) + H(x, x, x)`` built from the orders below p:
+``sum_q G(w_q, w_{p-q}) + sum_{a+b+c=p} H(w_a, w_b, w_c)`` with
+``w_q(theta) = sum_m Y[q, m] cos(m theta)``; these are evaluated at
+J = #harmonics phase nodes (DCT-II/IV nodes, exact) by polarisation of f
+(:mod:`stepnf.polarisation`): one batched force call per order.
+At the resonant ``(p = 2k+1, m = 1)`` the left side is singular; its
+solvability ``phi^T rhs = 0`` gives ``S_k = phi^T F[p, 1]`` (with the
+normalisation ``phi^T M Y[p, 1] = 0``, p >= 3), hence ``c_k``, and ``Y[p, 1]``
+comes from the bordered system (:mod:`stepnf.dpim_solvers`).
+
+Order 3: ``c_1 = phi^T F[3, 1] / (2 w)`` and ``T = c_1 / w`` (``A = rho + O(rho^3)``):
+DNF's T. The backbone against the amplitude ``A`` of ``q_p = phi^T M x`` is in
+:mod:`stepnf.dpim_backbone`.
+
+Checks: a degenerate twin that couples is refused (NumericalError naming the
+modes); modes near ``m w`` (m = 0 excluded, 2 <= m <= N, and 1 for non-twins)
+are flagged naming the mode, from the spectrum given (or computed densely for
+n <= 2000).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+from .counters import Counters
+from .dpim_backbone import Backbone
+from .dpim_solvers import FactorizationFactory, ShiftedSolves, Solve
+from .errors import NumericalError
+from .polarisation import ForceBatch, Polariser, count_evaluations
+
+DENSE_SPECTRUM_LIMIT = 2000
+
+
+@dataclass
+class DPIMResult:
+    """The parametrisation of one master mode to odd order ``order``.
+
+    ``Y[(p, m)]`` (n,) cosine coefficients (module docstring), ``c`` (K,)
+    with ``Omega(rho) = omega + sum_k c[k-1] rho^(2k)``; ``omega`` rad per
+    model time unit; ``counts`` one dict per order p = 2..N (force
+    evaluations, batched calls, linear solves, factorisations, seconds);
+    ``flags`` internal resonances met.
+    """
+
+    omega: float
+    phi: np.ndarray
+    M: Any
+    order: int
+    Y: dict[tuple[int, int], np.ndarray]
+    c: np.ndarray
+    counts: list[dict[str, Any]] = field(default_factory=list)
+    flags: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def T(self) -> float:
+        """Backbone coefficient ``w_NL = w (1 + T A^2 + ...)``: ``c_1 / w``."""
+        return float(self.c[0] / self.omega) if len(self.c) else 0.0
+
+    def normal_form(self) -> tuple[dict[tuple[int, int], np.ndarray], np.ndarray]:
+        """``({(a, b): W_ab} for a >= b, f)``: ``z1' = i w z1 + sum_k f[k-1] z1^(k+1) z2^k``, ``f_k = i 4^k c_k``.
+
+        With ``z1 = (rho/2) e^{i theta}``, ``x = sum W_ab z1^a z2^b`` (``W_ba = W_ab``).
+        """
+        W = {}
+        for (p, m), y in self.Y.items():
+            a, b = (p + m) // 2, (p - m) // 2
+            W[(a, b)] = (2.0 ** (p - 1) if m else 2.0 ** p) * y
+        f = 1j * self.c * 4.0 ** np.arange(1, len(self.c) + 1)
+        return W, f
+
+    def displacement(self, theta: float, rho: float) -> np.ndarray:
+        """``x(theta, rho) = sum_p rho^p sum_m Y[p, m] cos(m theta)`` (n,), model length units."""
+        return sum(rho ** p * np.cos(m * theta) * y for (p, m), y in self.Y.items())
+
+    def velocity(self, theta: float, rho: float) -> np.ndarray:
+        """``v = Omega(rho) dx/dtheta`` (n,): the velocity parametrisation, on the motion ``theta' = Omega``."""
+        om = self.omega + sum(ck * rho ** (2 * k) for k, ck in enumerate(self.c, start=1))
+        return -om * sum(rho ** p * m * np.sin(m * theta) * y for (p, m), y in self.Y.items())
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The coefficients as arrays (for HDF5).
+
+        ``index`` (k, 2) of (p, m), ``Y`` (k, n), ``c`` (K,), ``phi`` (n,), ``omega``.
+        """
+        keys = sorted(self.Y)
+        return {"index": np.asarray(keys, dtype=int).reshape(-1, 2), "Y": np.asarray([self.Y[k] for k in keys]),
+                "c": np.asarray(self.c, dtype=float), "phi": self.phi, "omega": np.asarray(self.omega)}
+
+    def truncated(self, order: int) -> "DPIMResult":
+        """The same parametrisation truncated at odd ``order`` (terms p <= order, c_k with 2k+1 <= order)."""
+        if order % 2 == 0 or order < 1 or order > self.order:
+            raise ValueError(f"truncation order must be odd, between 1 and {self.order}; got {order}")
+        Y = {k: v for k, v in self.Y.items() if k[0] <= order}
+        return DPIMResult(self.omega, self.phi, self.M, order, Y, self.c[: (order - 1) // 2],
+                          self.counts[: max(order - 1, 0)], self.flags)
+
+    def backbone(self) -> Backbone:
+        """The backbone ``omega(A)`` of this parametrisation (:class:`stepnf.dpim_backbone.Backbone`)."""
+        return Backbone(self)
+
+
+def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *, probe: float,
+         R: np.ndarray | None = None, spectrum: np.ndarray | None = None, master: int | None = None,
+         twins: np.ndarray | None = None, twin_index: Sequence[int] | None = None,
+         factory: FactorizationFactory | None = None, pinv: Solve | None = None, resonant: Solve | None = None,
+         deflated: Any | None = None, backend: str = "auto", counters: Counters | None = None,
+         resonance_tolerance: float = 0.05, twin_tolerance: float = 1e-6, coupling: float = 1e-5,
+         progress: Callable[[int], None] | None = None) -> DPIMResult:
+    """The DPIM of master mode ``phi`` (M-normalised, angular frequency ``omega``) to odd ``order``.
+
+    ``forces(U)``: internal forces (m, n) for fields ``U`` (m, n) (e.g. a
+    :class:`stepnf.step.ForceEvaluator`); ``probe``: polarisation probe size
+    (model length units, see :mod:`stepnf.polarisation`); ``R``: rigid modes
+    (n, r), M-orthonormal. ``spectrum``: angular frequencies of the model's
+    computed modes with ``master`` the master's index in it (used to flag
+    internal resonances and twins by name; computed densely when None and
+    n <= 2000). ``twins``: mode shapes (n, t) of the master's degenerate
+    companions (``twin_index`` their indices), handled when the master does
+    not drive them (cosine of their coupling <= ``coupling``), refused
+    otherwise. ``factory``/``pinv``/``resonant``/``deflated``: solvers the
+    caller provides (:class:`stepnf.dpim_solvers.ShiftedSolves`).
+    """
+    order = int(order)
+    if order < 3 or order % 2 == 0:
+        raise ValueError(f"DPIM order must be odd and >= 3, got {order}")
+    phi = np.asarray(phi, dtype=float)
+    n = len(phi)
+    check_mode(K, M, phi, omega, master)
+    counters = counters if counters is not None else Counters()
+    flags = resonance_flags(K, M, omega, order, spectrum, master, twins, twin_index,
+                            resonance_tolerance, twin_tolerance)
+    solves = ShiftedSolves(K, M, phi, omega, R=R, factory=factory, pinv=pinv, resonant=resonant,
+                           deflated=deflated, counters=counters, backend=backend, master=master,
+                           twins=twins, twin_index=twin_index, coupling=coupling)
+    pol = Polariser(forces, K, probe)
+    Msp = sp.csr_matrix(M) if sp.issparse(M) else np.asarray(M)
+    Y: dict[tuple[int, int], np.ndarray] = {(1, 1): phi.copy()}
+    MY: dict[tuple[int, int], np.ndarray] = {(1, 1): Msp @ phi}
+    c: list[float] = []
+    S: list[float] = []
+    counts: list[dict[str, Any]] = []
+    for p in range(2, order + 1):
+        t0 = time.perf_counter()
+        before = (pol.stats.force_evaluations, pol.stats.calls, counters.linear_solves, counters.factorizations,
+                  len(solves.shifts_factorised))
+        ms, F = nonlinear_forcing(pol, Y, p, n)
+        for j, m in enumerate(ms):
+            if m == 1:  # resonant: solvability gives S_k, then c_k
+                k = (p - 1) // 2
+                Sk = float(phi @ F[j]) - sum(S[i - 1] * float(phi @ MY[(p - 2 * i, 1)]) for i in range(1, k))
+                S.append(Sk)
+                c.append((Sk - sum(c[i - 1] * c[k - i - 1] for i in range(1, k))) / (2.0 * omega))
+            rhs = -F[j]
+            for k in range(1, (p - m) // 2 + 1 if m else 1):  # m = 0: no inertia term
+                rhs = rhs + (m * m) * S[k - 1] * MY[(p - 2 * k, m)]
+            Y[(p, m)] = solves.solve(m, rhs)
+            MY[(p, m)] = Msp @ Y[(p, m)]
+        counts.append({"order": p, "force_evaluations": pol.stats.force_evaluations - before[0],
+                       "force_calls": pol.stats.calls - before[1],
+                       "linear_solves": counters.linear_solves - before[2],
+                       "factorizations": max(counters.factorizations - before[3],
+                                             len(solves.shifts_factorised) - before[4]),
+                       "seconds": round(time.perf_counter() - t0, 4)})
+        if progress is not None:
+            progress(p)
+    solves.release()
+    return DPIMResult(float(omega), phi, M, order, Y, np.asarray(c), counts, flags)
+
+
+def planned_evaluations(order: int) -> list[int]:
+    """Force evaluations of orders 2..order (what :func:`dpim` will ask, before any zero-term shortcut).
+
+    Order p: at each of its J phase nodes, the pairs ``(w_q, w_{p-q})`` (4 evaluations, 2 when
+    q = p - q) and the triples ``a + b + c = p`` (8, 6 with a repeated order, 2 all equal).
+    """
+    out = []
+    for p in range(2, int(order) + 1):
+        J = len(phase_nodes(p)[0])
+        pd = sum(1 for q in range(1, p // 2 + 1) if q != p - q)
+        ps = 1 if p % 2 == 0 else 0
+        trip = [(a, b, p - a - b) for a in range(1, p // 3 + 1) for b in range(a, (p - a) // 2 + 1)]
+        cubes = sum(1 for t in trip if t[0] == t[2])
+        uuv = sum(1 for t in trip if t[0] != t[2] and (t[0] == t[1] or t[1] == t[2]))
+        out.append(J * count_evaluations(pd, ps, cubes, uuv, len(trip) - cubes - uuv))
+    return out
+
+
+def check_mode(K, M, phi: np.ndarray, omega: float, master: int | None = None, tol: float = 1e-6) -> None:
+    """NumericalError unless ``phi^T M phi = 1`` and ``K phi = omega^2 M phi`` to ``tol`` (relative)."""
+    who = "the master mode" if master is None else f"master mode {master}"
+    Mphi, Kphi = M @ phi, K @ phi
+    mass = float(phi @ Mphi)
+    if not (np.isfinite(mass) and abs(mass - 1.0) <= tol):
+        raise NumericalError(f"DPIM: {who} is not mass-normalised (phi^T M phi = {mass:.9g}, expected 1)")
+    defect = float(np.linalg.norm(Kphi - omega ** 2 * Mphi) / max(np.linalg.norm(Kphi), 1e-300))
+    if not defect <= tol:
+        raise NumericalError(f"DPIM: {who} and w = {omega:.9g} are not an eigenpair of (K, M): "
+                             f"|K phi - w^2 M phi| / |K phi| = {defect:.2e} > {tol:.0e}")
+
+
+def phase_nodes(p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Harmonics ``m`` of order p (same parity, 0..p), nodes ``theta`` (J,) and basis ``B[l, j] = cos(m_j theta_l)``.
+
+    Even p: ``2 theta_l = pi (l + 1/2) / J`` (DCT-II nodes); odd p:
+    ``theta_l = pi (2l + 1) / (4J)`` (DCT-IV nodes): B has orthogonal columns,
+    so the J cosine coefficients of an order-p term are exact from J samples.
+    """
+    ms = np.arange(p % 2, p + 1, 2)
+    J = len(ms)
+    l = np.arange(J)
+    theta = np.pi * (l + 0.5) / (2 * J) if p % 2 == 0 else np.pi * (2 * l + 1) / (4 * J)
+    return ms, theta, np.cos(np.outer(theta, ms))
+
+
+def nonlinear_forcing(pol: Polariser, Y: dict[tuple[int, int], np.ndarray], p: int,
+                      n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(ms, F)``: ``F[j]`` the ``cos(ms[j] theta)`` coefficient of the ``rho^p`` part of G(x,x) + H(x,x,x).
+
+    One batched call of the forces: the pairs ``(w_q, w_{p-q})``, q <= p/2,
+    and the triples ``w_a, w_b, w_c`` (a <= b <= c, a + b + c = p) at each
+    phase node, weighted by their number of orderings.
+    """
+    ms, theta, B = phase_nodes(p)
+    w = {}
+    for q in range(1, p):
+        mq = np.arange(q % 2, q + 1, 2)
+        Yq = np.stack([Y[(q, m)] for m in mq])        # (Jq, n)
+        w[q] = np.cos(np.outer(theta, mq)) @ Yq         # (J, n): w_q at the nodes
+    pairs, wp = [], []
+    for q in range(1, p // 2 + 1):
+        for l in range(len(theta)):
+            u = w[q][l]
+            pairs.append((u, u) if q == p - q else (u, w[p - q][l]))
+            wp.append(1.0 if q == p - q else 2.0)
+    triples, wt = [], []
+    for a in range(1, p // 3 + 1):
+        for b in range(a, (p - a) // 2 + 1):
+            cc = p - a - b
+            mult = 1.0 if a == cc else (3.0 if (a == b or b == cc) else 6.0)
+            for l in range(len(theta)):
+                triples.append((w[a][l], w[b][l], w[cc][l]))
+                wt.append(mult)
+    Gs, Hs = pol.terms(pairs, triples)
+    J = len(theta)
+    Fn = np.zeros((J, n))
+    for i, wgt in enumerate(wp):
+        Fn[i % J] += wgt * Gs[i]
+    for i, wgt in enumerate(wt):
+        Fn[i % J] += wgt * Hs[i]
+    return ms, np.linalg.solve(B, Fn)
+
+
+def resonance_flags(K, M, omega: float, order: int, spectrum, master, twins, twin_index,
+                    tol: float, twin_tol: float) -> list[dict[str, Any]]:
+    """Flags of modes near ``m omega`` (2 <= m <= order; m = 1 for a non-declared mode); refuses undeclared twins.
+
+    ``spectrum``: angular frequencies (same unit as ``omega``) indexed like
+    the caller's modes; when None and n <= 2000, every generalised
+    eigenvalue of (K, M) is computed (modes then numbered from 0 in
+    ascending order, rigid ones included). A mode s != master, not among
+    ``twin_index``, with ``|w_s / w - 1| <= twin_tol`` is an undeclared
+    degenerate twin: NumericalError naming both modes.
+    """
+    n = K.shape[0]
+    flags: list[dict[str, Any]] = []
+    if spectrum is None:
+        if n > DENSE_SPECTRUM_LIMIT:
+            return [{"kind": "resonance_check_skipped", "mode": None,
+                     "message": "DPIM: no spectrum given for a large model: internal resonances not checked"}]
+        Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
+        Md = M.toarray() if sp.issparse(M) else np.asarray(M)
+        lam = sla.eigh(Kd, Md, eigvals_only=True)
+        spectrum = np.sqrt(np.clip(lam, 0.0, None))
+    spectrum = np.asarray(spectrum, dtype=float)
+    if master is None:  # the master is the computed mode nearest to omega
+        master = int(np.argmin(np.abs(spectrum - omega)))
+    declared = {int(i) for i in twin_index} if twin_index is not None else set()
+    n_twins = 0 if twins is None else np.asarray(twins).reshape(n, -1).shape[1]
+    who = f"master mode {master}"
+    r_all = spectrum / omega
+    same = [s for s in range(len(spectrum)) if s != master and abs(r_all[s] - 1.0) <= twin_tol]
+    undeclared = [s for s in same if s not in declared]
+    if undeclared and len(same) > n_twins:  # (a dense spectrum numbers modes its own way: count them)
+        r = r_all[undeclared[0]]
+        raise NumericalError(
+            f"DPIM: mode {undeclared[0]} has the frequency of {who} (w_s/w_p = {r:.9f}): a degenerate twin "
+            f"(1:1 internal resonance); a single-mode parametrisation is refused unless the twin is "
+            f"declared (twins=...) and symmetry keeps it uncoupled")
+    for s, r in enumerate(r_all):
+        if s == master or s in same or spectrum[s] <= 0:
+            continue
+        m = int(round(r))
+        if 1 <= m <= order and abs(r - m) <= tol * m:
+            flags.append({"kind": f"internal_resonance_1_{m}", "mode": int(s), "harmonic": m, "ratio": float(r),
+                          "message": f"DPIM: mode {s} is near {m} x the frequency of {who} "
+                                     f"(w_s/w_p = {r:.4f}): K - ({m} w)^2 M is nearly singular, the "
+                                     f"harmonic {m} of the parametrisation has a small denominator"})
+    return flags

@@ -1,0 +1,156 @@
+"""The backbone of a DPIM parametrisation: frequency against the measured amplitude, and its validity.
+
+On the manifold ``x(theta, rho) = sum_p rho^p sum_m Y[p, m] cos(m theta)`` the
+motion is ``theta = Omega(rho) t``, so the period is ``2 pi / Omega(rho)``
+(:mod:`stepnf.dpim`). The amplitude is measured on that motion, as the issue
+defines it: ``A = (max_t q_p - min_t q_p) / 2`` with
+``q_p = phi^T M x = sum_p rho^p sum_m a[p, m] cos(m theta)``, found on a
+phase grid of ``64 N`` points over [0, pi] (x is even in theta) and refined
+by Brent's method around the extrema (to ~1e-12 relative). ``W_max`` is the
+largest ``|x_i|`` over the transverse dofs and the period, measured the same
+way. ``omega(A)`` inverts ``A(rho)`` (Brent; A(rho) = rho + O(rho^2)).
+
+Validity: the largest A below which orders N and N-2 give frequencies that
+differ by at most ``tol`` relative (both at the same measured A).
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy.optimize import brentq, minimize_scalar
+
+from .errors import NumericalError
+
+Transverse = Callable[[np.ndarray], np.ndarray] | Sequence[int] | np.ndarray
+
+
+class Backbone:
+    """``omega(A)``, ``A(rho)``, ``W_max(rho)`` of a :class:`stepnf.dpim.DPIMResult` (module docstring)."""
+
+    def __init__(self, res: Any):
+        self.res = res
+        self.N = res.order
+        self.a = np.zeros((self.N + 1, self.N + 1))  # a[p, m] = phi^T M Y[p, m]
+        Mphi = res.M @ res.phi
+        for (p, m), y in res.Y.items():
+            self.a[p, m] = float(Mphi @ y)
+        self.theta = np.linspace(0.0, np.pi, 64 * self.N + 1)
+        self._cos = np.cos(np.outer(np.arange(self.N + 1), self.theta))  # (m, theta)
+
+    # ------------------------------------------------------------ frequency
+    def frequency(self, rho: float | np.ndarray) -> np.ndarray | float:
+        """``Omega(rho) = omega + sum_k c_k rho^(2k)`` (rad per model time unit)."""
+        r2 = np.asarray(rho, dtype=float) ** 2
+        out = np.full(r2.shape, self.res.omega)
+        for k, ck in enumerate(self.res.c, start=1):
+            out = out + ck * r2 ** k
+        return float(out) if out.ndim == 0 else out
+
+    # ------------------------------------------------------------ amplitude
+    def _q_coef(self, rho: float) -> np.ndarray:
+        return (rho ** np.arange(self.N + 1))[:, None] * self.a  # (p, m)
+
+    def amplitude(self, rho: float) -> float:
+        """``A(rho) = (max q_p - min q_p) / 2`` over one period (module docstring)."""
+        cm = self._q_coef(rho).sum(axis=0)  # coefficient of cos(m theta)
+        q = cm @ self._cos
+        ms = np.arange(self.N + 1)
+        f = lambda t: float(cm @ np.cos(ms * t))  # noqa: E731
+        hi = _refine(f, self.theta, int(np.argmax(q)), maximise=True)
+        lo = _refine(f, self.theta, int(np.argmin(q)), maximise=False)
+        return 0.5 * (hi - lo)
+
+    def rho_at(self, A: float) -> float:
+        """The ``rho`` whose measured amplitude is ``A`` (NumericalError when A(rho) never reaches it)."""
+        if A <= 0:
+            return 0.0
+        hi, prev = float(A), 0.0
+        for _ in range(200):
+            Ahi = self.amplitude(hi)
+            if Ahi >= A:
+                return brentq(lambda r: self.amplitude(r) - A, 0.0, hi, xtol=1e-15 * hi, rtol=1e-15)
+            if Ahi <= prev:
+                break
+            prev, hi = Ahi, hi * 1.25
+        raise NumericalError(f"DPIM backbone: the order-{self.N} parametrisation never reaches the amplitude "
+                             f"A = {A:.6g} (its A(rho) stops growing at {prev:.6g})")
+
+    def omega_at(self, A: float | Sequence[float]) -> np.ndarray:
+        """Backbone frequencies (rad per time unit) at the amplitudes ``A`` of ``q_p``."""
+        return np.asarray([self.frequency(self.rho_at(float(x))) for x in np.atleast_1d(A)])
+
+    # -------------------------------------------------------- W_max / h
+    def w_max(self, rho: float, transverse: Transverse, h: float = 1.0) -> float:
+        """Largest transverse displacement over the period divided by ``h``.
+
+        ``transverse``: indices of the transverse dofs, or a callable mapping
+        displacement fields (n, k) to transverse displacements (t, k). Only
+        the transverse part of each coefficient is expanded over the phase
+        grid (t x 64N values), then the largest one is refined by Brent.
+        """
+        keys = list(self.res.Y)
+        Ystack = np.column_stack([self.res.Y[k] for k in keys])  # (n, terms)
+        Tc = transverse(Ystack) if callable(transverse) else Ystack[np.asarray(transverse)]
+        Tc = np.asarray(Tc, dtype=float) * np.asarray([rho ** p for p, _ in keys])  # (t, terms)
+        C = np.zeros((Tc.shape[0], self.N + 1))  # coefficient of cos(m theta) per transverse dof
+        for j, (_, m) in enumerate(keys):
+            C[:, m] += Tc[:, j]
+        Wt = C @ self._cos
+        i, j = np.unravel_index(int(np.argmax(np.abs(Wt))), Wt.shape)
+        sign = np.sign(Wt[i, j]) or 1.0
+        ms = np.arange(self.N + 1)
+        f = lambda t: sign * float(C[i] @ np.cos(ms * t))  # noqa: E731
+        return _refine(f, self.theta, int(j), maximise=True) / h
+
+    def w_max_at(self, A: float | Sequence[float], transverse: Transverse, h: float = 1.0) -> np.ndarray:
+        """``W_max / h`` at the amplitudes ``A`` of ``q_p`` (see :meth:`w_max`)."""
+        return np.asarray([self.w_max(self.rho_at(float(x)), transverse, h) for x in np.atleast_1d(A)])
+
+    # ---------------------------------------------------------- validity
+    def validity_limit(self, tol: float = 1e-3, lower: "Backbone | None" = None,
+                       steps: int = 400, growth: float = 1.05) -> tuple[float | None, str]:
+        """``(A_max, reason)``: the largest A with ``|omega_N(A) - omega_{N-2}(A)| <= tol omega``.
+
+        Marches rho up by ``growth`` from a small value and refines the first
+        crossing by Brent's method. ``reason`` says what ended the march:
+        ``"orders differ"``, ``"amplitude folds"`` (A(rho) stops growing) or
+        ``"not reached"`` (A_max is then None).
+        """
+        if lower is None:
+            lower = Backbone(self.res.truncated(self.N - 2)) if self.N >= 3 else None
+        w = self.res.omega
+        c1 = abs(self.res.c[0]) if len(self.res.c) else 0.0
+        rho = 1e-4 * (np.sqrt(w / c1) if c1 > 0 else 1.0)
+
+        def diff(r: float) -> float:
+            A = self.amplitude(r)
+            return abs(self.frequency(r) - lower.frequency(lower.rho_at(A))) / w - tol
+
+        prev_r, prev_A = 0.0, 0.0
+        for _ in range(steps):
+            A = self.amplitude(rho)
+            if A <= prev_A:
+                return prev_A, "amplitude folds"
+            try:
+                d = diff(rho)
+            except NumericalError:
+                return prev_A, "amplitude folds"
+            if d > 0:
+                if prev_r == 0.0:
+                    return 0.0, "orders differ"
+                r = brentq(diff, prev_r, rho, xtol=1e-12 * rho)
+                return self.amplitude(r), "orders differ"
+            prev_r, prev_A, rho = rho, A, rho * growth
+        return None, "not reached"
+
+
+def _refine(f: Callable[[float], float], grid: np.ndarray, i: int, *, maximise: bool) -> float:
+    """Extremum of ``f`` near ``grid[i]`` by bounded Brent (grid spacing either side)."""
+    h = grid[1] - grid[0]
+    sgn = -1.0 if maximise else 1.0
+    r = minimize_scalar(lambda t: sgn * f(t), bounds=(grid[i] - h, grid[i] + h), method="bounded",
+                        options={"xatol": 1e-13})
+    best = sgn * r.fun
+    g = f(grid[i])
+    return max(best, g) if maximise else min(best, g)

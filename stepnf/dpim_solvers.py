@@ -1,0 +1,156 @@
+"""The linear solves of the direct parametrisation: ``(K - (m w)^2 M) y = b``, factorisations shared.
+
+Three kinds of shift ``sigma = (m w)^2`` (``w`` the master's angular frequency):
+
+``m = 0``
+    ``K^+ b``: with rigid-body modes ``R`` (M-orthonormal, (n, r)) the
+    right-hand side is self-equilibrated and the solution is taken
+    M-orthogonal to ``R`` (:class:`stepnf.linalg.PseudoInverse`, or the
+    caller's ``pinv``).
+``m = 1`` (resonant)
+    ``K - w^2 M`` is singular (phi_p in its kernel). The solution with
+    ``phi_p^T M y = 0`` of ``(K - w^2 M) y = b`` (b with ``phi_p^T b = 0``)
+    comes from the bordered system ``[[K - w^2 M, M phi], [phi^T M, 0]]``, or
+    from the caller's ``resonant`` solve (e.g.
+    :meth:`stepnf.deflation.DeflatedSolver.solve` with the master and its
+    twins excluded). A singular bordered matrix means a degenerate twin.
+``m >= 2``
+    one factorisation per shift, kept in a dict keyed by the shift and reused
+    by every order; made by ``factory(sigma, label)`` (the pipeline's own,
+    e.g. ``FullOrderContext.shifted_factorization`` without its one-slot
+    cache, or :func:`stepnf.linalg.shifted_factorization`), or replaced by the
+    caller's ``deflated`` solver when the shift is admissible for it.
+
+Every solve and factorisation is counted (``solves``, ``factorizations`` and
+the shifts used), so the caller can report counts per order.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from .counters import Counters
+from .errors import NumericalError
+from .linalg import Factorization, PseudoInverse, factorize
+
+FactorizationFactory = Callable[[float, str], Factorization]
+Solve = Callable[[np.ndarray], np.ndarray]
+
+
+class ShiftedSolves:
+    """Solves with ``K - (m w)^2 M`` for the harmonics ``m`` of the parametrisation (module docstring).
+
+    ``K``, ``M`` sparse or dense (n, n); ``phi`` the M-normalised master mode;
+    ``omega`` its angular frequency; ``R`` rigid modes (n, r) or None.
+    ``factory``, ``pinv``, ``resonant``, ``deflated``: optional replacements
+    of the default factorisations (see the module docstring).
+    """
+
+    def __init__(self, K, M, phi: np.ndarray, omega: float, *, R: np.ndarray | None = None,
+                 factory: FactorizationFactory | None = None, pinv: Solve | None = None,
+                 resonant: Solve | None = None, deflated: Any | None = None,
+                 counters: Counters | None = None, backend: str = "auto", master: int | None = None,
+                 twins: np.ndarray | None = None, twin_index: Any = None, coupling: float = 1e-5):
+        self.K = sp.csr_matrix(K)
+        self.M = sp.csr_matrix(M)
+        self.phi = np.asarray(phi, dtype=float)
+        self.omega = float(omega)
+        self.R = np.zeros((len(phi), 0)) if R is None else np.asarray(R, dtype=float)
+        self.counters = counters if counters is not None else Counters()
+        self.backend = backend
+        self.factory = factory
+        self.deflated = deflated
+        self.master = master
+        self._pinv = pinv
+        self._resonant = resonant
+        self.twins = np.zeros((len(phi), 0)) if twins is None else np.asarray(twins, dtype=float).reshape(len(phi), -1)
+        self.twin_index = list(range(self.twins.shape[1])) if twin_index is None else list(twin_index)
+        self.coupling = float(coupling)
+        self._cache: dict[float, Solve] = {}
+        self.shifts_factorised: list[float] = []
+
+    # ------------------------------------------------------------------ API
+    def solve(self, m: int, b: np.ndarray) -> np.ndarray:
+        """``y`` with ``(K - (m w)^2 M) y = b`` (for m = 1: ``phi^T M y = 0``, b's phi part ignored)."""
+        m = abs(int(m))
+        if m == 1:
+            return self._solve_resonant(b)
+        sigma = (m * self.omega) ** 2
+        solver = self._cache.get(sigma)
+        if solver is None:
+            solver = self._make(m, sigma)
+            self._cache[sigma] = solver
+        return solver(b)
+
+    def release(self) -> None:
+        """Free every kept factorisation."""
+        self._cache.clear()
+
+    # ------------------------------------------------------------ internals
+    def _make(self, m: int, sigma: float) -> Solve:
+        label = f"K - ({m} w)^2 M (DPIM{'' if self.master is None else f', mode {self.master}'})"
+        if m == 0:
+            if self._pinv is not None:
+                return self._count(self._pinv)
+            if self.deflated is not None:  # K^+ from the computed modes (rigid ones excluded)
+                return self.deflated.pinv
+            if self.R.shape[1]:
+                P = PseudoInverse(self.K, self.M, self.R, counters=self.counters, backend=self.backend)
+                self.shifts_factorised.append(0.0)
+                return P
+        if self.deflated is not None and self.deflated.admissible(sigma):
+            d = self.deflated
+            return lambda b: d.solve(b, sigma)  # counts its own CG iterations as solves
+        if self.factory is not None:
+            fac = self.factory(sigma, label)
+        else:
+            fac = factorize((self.K - sigma * self.M).tocsr(), counters=self.counters, backend=self.backend,
+                            label=label)
+        self.shifts_factorised.append(sigma)
+        return fac.solve
+
+    def _count(self, f: Solve) -> Solve:
+        def g(b):
+            self.counters.linear_solves += 1
+            return f(b)
+        return g
+
+    def _solve_resonant(self, b: np.ndarray) -> np.ndarray:
+        D = np.column_stack([self.phi, self.twins])
+        MD = self.M @ D
+        who = "the master mode" if self.master is None else f"master mode {self.master}"
+        if self.twins.shape[1]:  # a twin that the master drives makes the single-mode manifold impossible
+            cos = np.abs(self.twins.T @ b) / max(np.linalg.norm(b) * 1.0, 1e-300)
+            cos /= np.maximum(np.linalg.norm(self.twins, axis=0), 1e-300)
+            if np.any(cos > self.coupling):
+                j = int(np.argmax(cos))
+                raise NumericalError(
+                    f"DPIM: mode {self.twin_index[j]}, a degenerate twin of {who} (same frequency, 1:1 "
+                    f"internal resonance), is driven by the master's nonlinear forces (coupling {cos[j]:.2e} > "
+                    f"{self.coupling:.1e}): a single-mode invariant manifold does not exist; a two-mode "
+                    "parametrisation is needed")
+        b = b - MD @ (D.T @ b)  # phi's part is the solvability condition (met up to round-off); twins' checked
+        if self._resonant is not None:
+            self.counters.linear_solves += 1
+            y = np.asarray(self._resonant(b), dtype=float)
+            return y - D @ (MD.T @ y)
+        solver = self._cache.get(-1.0)
+        if solver is None:
+            w2 = self.omega ** 2
+            A = sp.bmat([[self.K - w2 * self.M, sp.csr_matrix(MD)],
+                         [sp.csr_matrix(MD.T), None]]).tocsr()
+            try:
+                fac = factorize(A, counters=self.counters, backend=self.backend,
+                                label=f"bordered K - w^2 M ({who})")
+            except NumericalError as exc:
+                raise NumericalError(
+                    f"DPIM: K - w^2 M bordered with phi is singular for {who} (w = {self.omega:.6g} rad/s): "
+                    f"another mode has the same frequency (a degenerate twin, 1:1 internal resonance); "
+                    f"pass its mode shape as a twin if symmetry keeps it uncoupled ({exc})") from exc
+            self.shifts_factorised.append(w2)
+            n, k = len(b), D.shape[1]
+            solver = lambda rhs: fac.solve(np.concatenate([rhs, np.zeros(k)]))[:n]  # noqa: E731
+            self._cache[-1.0] = solver
+        return solver(b)
