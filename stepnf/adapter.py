@@ -29,6 +29,12 @@ implementations that raise:
     :meth:`quadratic_force` and :meth:`cubic_force` give the exact ``G(u, v)``
     and ``H(u, v, w)`` (for regression tests of the non-intrusive route).
 
+Output mesh: :meth:`SolverAdapter.output_mesh` (default ``None``) may return
+a :class:`stepnf.fields.OutputMesh` (points and meshio cell blocks); stepnf
+then writes the mode shapes and second-order fields for ParaView, placing
+each dof at the point nearest its :meth:`~SolverAdapter.dof_coordinates`
+(so the mesh's points must include the dofs' nodes).
+
 Scene keys: an adapter declares the keys of its ``[model]`` table in
 ``model_keys`` (a :class:`stepnf.schema.Schema`), and may override
 ``validate_config`` (checks across keys; pure) and ``from_config`` (the
@@ -183,6 +189,11 @@ class SolverAdapter(FromScene):
         """A :class:`stepnf.boundary.FreeDofs` when boundary conditions removed dofs: how the dofs this
         adapter exposes sit among all the dofs of its mesh (stored with the results, so fields can be
         mapped back to the whole mesh); ``None`` when every dof is free."""
+        return None
+
+    def output_mesh(self) -> Any | None:
+        """A :class:`stepnf.fields.OutputMesh` to write fields on (the whole mesh, fixed nodes included), or
+        ``None`` (no field files). Needs :meth:`dof_coordinates` and :meth:`dof_directions`."""
         return None
 
     def mode_labels(self, Phi: np.ndarray) -> list[Any]:

@@ -53,6 +53,12 @@ class MethodResult:
     ``T`` is ``+inf``/``-inf`` where the method diverges (flagged), never NaN.
     ``T_error`` estimates the relative error of T due to STEP (from the check
     amplitude), ``gamma`` is Gamma when the model is a shell.
+
+    ``fields`` holds the full-order evaluators' displacement vectors (n,) in
+    the model's dof order, named and normalised as :mod:`stepnf.evaluators`
+    documents (``a_bar``, ``w2_b_bar``, ``theta``); they are for the
+    ParaView output (:mod:`stepnf.fields`) and are neither in :meth:`to_dict`
+    (JSON) nor in the HDF5 results file.
     """
 
     method: str
@@ -64,6 +70,7 @@ class MethodResult:
     T_error: float | None = None
     gamma: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    fields: dict[str, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def behaviour(self) -> str:

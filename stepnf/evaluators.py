@@ -17,6 +17,33 @@ mesh's imperfect symmetry creates (measured ~1e-6 on the O-grid caps) stay
 below it, physical ones (1e-2 and more) far above. A coupled mode within
 ``resonance_tolerance`` of the resonance (``w_s/w_p`` near 2 for NF/DNF, near
 1 for MD) is flagged, naming the mode; exact resonance gives ``+-inf``.
+
+Fields (for ParaView, :mod:`stepnf.fields`): the full-order evaluators put
+their displacement vectors in :attr:`MethodResult.fields <stepnf.backbone.
+MethodResult.fields>`, each (n,) in the model's dof order (constrained dofs
+removed, as every vector of the adapter protocol), for a mass-normalised
+``phi`` (``phi^T M phi = 1``; ``a`` is the modal amplitude, ``q_p = phi^T M x``):
+
+* :func:`dnf`: ``"a_bar"`` = a_bar of DESIGN.md (Eq. 9-10) and
+  ``"w2_b_bar"`` = ``w_p^2 b_bar`` (b_bar multiplies the squared velocity;
+  times ``w_p^2`` it is a displacement per squared amplitude like a_bar).
+  On the backbone, ``R = a cos(w t)``, ``R' = -a w sin(w t)``:
+  ``x(t) = a cos(wt) phi + a^2 [cos^2(wt) a_bar + sin^2(wt) w2_b_bar] + O(a^3)``,
+  so ``a_bar`` is the second-order displacement at the turning point (wt = 0,
+  largest ``phi`` amplitude) and ``w2_b_bar`` a quarter period later (where
+  ``phi`` passes through zero). Equivalently the second-order motion is a
+  mean drift ``(a^2/2)(a_bar + w2_b_bar) = -(a^2/2) K^+ Gv`` plus a second
+  harmonic ``(a^2/2)(a_bar - w2_b_bar) cos(2wt)``, ``a_bar - w2_b_bar =
+  -(K - 4 w^2 M)^-1 Gv``. A free structure: both are M-orthogonal to the
+  rigid-body modes ``R`` (and ``Gv`` above reads ``Gv - M R R^T Gv``).
+* :func:`md_full`, :func:`smd_full`: ``"theta"``, the (static) modal
+  derivative of the manifold ``u = phi R + theta R^2 / 2``:
+  ``x(t) = a cos(wt) phi + (a^2 / 2) cos^2(wt) theta + O(a^3)``.
+  MD: ``(K - w^2 M) theta = -2 Gv + M D l`` with ``theta`` M-orthogonal to
+  ``D`` = phi and its twins (``l`` the bordered system's multipliers); SMD: ``theta = -2 K^+ Gv``.
+
+``FullOrderContext.keep_fields = False`` keeps none (large models, no
+output). A diverging evaluation (flagged, ``T = +-inf``) has no fields.
 """
 from __future__ import annotations
 
@@ -174,6 +201,8 @@ class FullOrderContext:
     shifted: Callable[[float, str], Factorization] | None = None
     #: solves from the computed modes and the eigen-solver's factorisation (no new factorisation)
     deflated: "DeflatedSolver | None" = None
+    #: keep the displacement vectors in ``MethodResult.fields`` (see the module docstring)
+    keep_fields: bool = True
     _last: tuple[float, Factorization] | None = None
 
     def shifted_factorization(self, sigma: float, label: str) -> Factorization:
@@ -194,7 +223,8 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
         *, dGv: np.ndarray | None = None, dh: float = 0.0) -> tuple[MethodResult, np.ndarray]:
     """Direct normal form, full order (paper Eq. 9-10): two linear solves.
 
-    Returns the result and ``y = K^+ Gv`` (reused by full-order SMD). With
+    Returns the result and ``y = K^+ Gv`` (reused by full-order SMD); the result's
+    ``fields`` hold ``a_bar`` and ``w2_b_bar = w^2 b_bar`` (module docstring). With
     ``dGv``, ``dh`` (differences at the STEP check amplitude) ``T_error`` is
     the first-order change of T: ``dA = 4 dGv^T a_bar``, ``dB = 4 dGv^T b_bar``.
     """
@@ -219,6 +249,8 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
     T = (3 * (A + h) + w2 * B) / (8 * w2)
     res = MethodResult("dnf", T, (0.0, 0.0, 0.0, A + h, w2 * B, 0.0), [], order="full")
     res.extra = {"A": A, "B": B, "h": h}
+    if ctx.keep_fields:
+        res.fields = {"a_bar": a_bar, "w2_b_bar": 0.5 * (z - y)}  # w2_b_bar = w^2 b_bar
     if dGv is not None:
         dA, dB = 4 * float(dGv @ a_bar), 4 * float(dGv @ b_bar)
         dT = (3 * (dA + dh) + w2 * dB) / (8 * w2)
@@ -298,4 +330,6 @@ def _qm_full(method: str, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: fl
     t = float(theta @ Gv)
     C = qm_coefficients(omega_p, float(phi @ Gv), h, mu1, mu2, k2, t)
     res = MethodResult(method, backbone_T(C, omega_p), C, [], order="full")
+    if ctx.keep_fields:
+        res.fields = {"theta": theta}
     return res

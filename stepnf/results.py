@@ -86,6 +86,8 @@ class RunResult:
     hdf5_path: str | None = None
     extra_files: list[str] = field(default_factory=list)
     counters_note: str | None = None
+    #: the adapter's mesh for the field files (:mod:`stepnf.fields`), until they are written; not stored
+    output_mesh: Any = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {

@@ -30,7 +30,11 @@ units), ``relative_amplitude`` (fraction of the characteristic length),
 ``check`` (bool), ``check_ratio``, ``tolerance``, ``method`` ("forces" |
 "tangent": G and h from the solver's tangent stiffness, for solvers that
 offer it and print few digits). ``[output]``: ``dir``,
-``name`` (file stem, default the scene's), ``hdf5`` (bool), ``plot`` (bool).
+``name`` (file stem, default the scene's), ``hdf5`` (bool), ``plot`` (bool),
+``fields`` (bool, default true: beside the results file ``NAME.h5``, the mesh
+with each master mode's shape and second-order fields for ParaView,
+``NAME_fields.xdmf``/``.h5``/``.vtu``, where the adapter gives an output mesh;
+:mod:`stepnf.fields`).
 
 Every key is checked when the file is read, with its allowed range (the
 constants below give each range and its reason): a wrong type, a value out of
@@ -61,7 +65,7 @@ ANALYSIS_KEYS = ("master_modes", "methods", "retained_modes", "qm_order", "tenso
                  "rigid_tolerance", "degeneracy_tolerance", "resonance_tolerance", "coupling_tolerance",
                  "linear_solver", "deflation", "max_modes", "thickness", "transverse", "step")
 STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance", "method")
-OUTPUT_KEYS = ("dir", "name", "hdf5", "plot")
+OUTPUT_KEYS = ("dir", "name", "hdf5", "plot", "fields")
 _LABEL = re.compile(r"^\s*\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*$")
 
 
@@ -96,6 +100,7 @@ class Scene:
     output_name: str = "stepnf"
     write_hdf5: bool = True
     plot: bool = False
+    fields: bool = True  # [output] fields: ParaView files beside the results file (stepnf.fields)
     file: Path | None = None
     base_dir: Path = Path(".")
     text: str = ""
@@ -317,6 +322,6 @@ def _output(f, out: Any, sc: Scene) -> None:
     sc.output_dir = Path(d) if Path(d).is_absolute() else sc.base_dir / d
     # the default, the scene's own file stem, has no '/' and stays inside the folder
     sc.output_name = check_name(f, "output.name", out["name"]) if "name" in out else (f.stem if f else "stepnf")
-    for key, attr in (("hdf5", "write_hdf5"), ("plot", "plot")):
+    for key, attr in (("hdf5", "write_hdf5"), ("plot", "plot"), ("fields", "fields")):
         if key in out:
             setattr(sc, attr, check_bool(f, f"output.{key}", out[key]))

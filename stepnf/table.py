@@ -73,5 +73,5 @@ def format_table(res: RunResult) -> str:
     if res.hdf5_path:
         lines.append(f"results: {res.hdf5_path}")
     for p in res.extra_files:
-        lines.append(f"figure: {p}")
+        lines.append(f"{'figure' if str(p).endswith('.png') else 'fields'}: {p}")
     return "\n".join(lines)

@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 
 from stepnf.evaluators import nf_modal
+from stepnf.fields import field_name
 from stepnf.models.vonkarman import VonKarmanShell
 from stepnf.pipeline import run_scene
 from stepnf.scene import load_scene
 from stepnf.table import format_table
+from test_fields import vtk_matches_xdmf
 
 pytestmark = [pytest.mark.fenicsx, pytest.mark.slow]
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -94,3 +96,12 @@ def test_kappa25_example(tmp_path):
     flags = modes[(4, 0)].methods["dnf"].flags
     assert any(f["kind"] == "internal_resonance_1_2" and f["label"] == (0, 2) for f in flags)
     assert res.counts["factorizations"] <= 4 and res.counts["force_evaluations"] == 24
+    # issue 13: the ParaView files beside the results: one field per master mode and per correction,
+    # read back by meshio (XDMF) and by VTK's own reader (VTU, where Debian's python3-vtk9 is installed)
+    meshio = pytest.importorskip("meshio")
+    xdmf = Path(res.hdf5_path).with_name("shell_kappa25_fields.xdmf")
+    back = meshio.read(xdmf)
+    kinds = ("phi", "dnf_a_bar", "dnf_w2_b_bar", "md_theta", "smd_theta")
+    assert set(back.point_data) == {field_name(m.index, m.label, k) for m in res.modes for k in kinds}
+    assert all(u.shape == (len(back.points), 3) for u in back.point_data.values())
+    vtk_matches_xdmf(xdmf.with_suffix(".vtu"), back)

@@ -149,6 +149,7 @@ OUTPUT_CASES = {
              '"' + "x" * 300 + '"', BOOL, ARRAY],
     "hdf5": ['"yes"', "1", TABLE],
     "plot": ["0", '"no"'],
+    "fields": ["0", '"no"', ARRAY],
 }
 
 

@@ -253,6 +253,12 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                              "and appends its own steps, so no job template is used; remove template")
         return c
 
+    def output_mesh(self):
+        """The nodes and elements ccx runs, for the ParaView fields (:mod:`.fields_mesh`)."""
+        from .fields_mesh import deck_output_mesh
+
+        return deck_output_mesh(self.node_ids, self.points, self.blocks)
+
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d.update(

@@ -197,6 +197,12 @@ class FenicsxAdapter(FormsAdapter):
     def dof_directions(self) -> np.ndarray:
         return self._free_rows(np.tile(np.arange(3), len(self._nodes)))
 
+    def output_mesh(self):
+        """The input volume mesh, for the ParaView fields (:mod:`stepnf_fenicsx.fields_mesh`)."""
+        from .fields_mesh import volume_output_mesh
+
+        return volume_output_mesh(self.mesh)
+
     def characteristic_length(self) -> float | None:
         if self.geometry is not None:
             return float(self.geometry["h"])

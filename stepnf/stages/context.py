@@ -1,0 +1,74 @@
+"""The full-order linear algebra of the evaluators: ``K^+``, shifted factorisations, deflation."""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..counters import Counters
+from ..deflation import DeflatedSolver
+from ..evaluators import FullOrderContext
+from ..linalg import Factorization, PseudoInverse, apply_columns
+from ..modal import lambda_scale
+from .state import RunState
+
+
+def adapter_shifted(shift_solver: Callable, n: int, counters: Counters) -> Callable[[float, str], Factorization]:
+    """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects."""
+    def shifted(sigma: float, label: str) -> Factorization:
+        counters.factorizations += 1
+        raw = shift_solver(sigma)
+        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label)
+    return shifted
+
+
+class DeflatedPinv:
+    """``K^+`` through a :class:`DeflatedSolver` (same interface as :class:`PseudoInverse`)."""
+
+    def __init__(self, solver: DeflatedSolver, R: np.ndarray):
+        self.solver, self.R = solver, R
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        return self.solver.pinv(b)
+
+
+def deflation_preconditioner(state: RunState, shift_solver: Callable | None) -> Callable | None:
+    """A solve with K (or K slightly shifted) that a :class:`DeflatedSolver` can use, or None.
+
+    The eigen-solver's factors when stepnf factorised (no extra factorisation); else, for a solver
+    with its own shifted solves and a partial spectrum, ONE factorisation by the solver (e.g.
+    distributed, under MPI) that then serves every solve below the computed spectrum, bordered
+    modal-derivative systems included. None without ``deflation`` or when neither applies.
+    """
+    basis, scene = state.basis, state.scene
+    if basis.factorization is not None and shift_solver is None and scene.deflation:
+        F0 = basis.factorization
+        return lambda b: F0.solve(b, count=False)
+    if shift_solver is not None and scene.deflation and basis.n_elastic and not basis.complete:
+        state.counters.factorizations += 1
+        return shift_solver(-1e-10 * lambda_scale(state.K, state.M))
+    return None
+
+
+def full_order_context(state: RunState) -> FullOrderContext:
+    """The evaluators' :class:`FullOrderContext`, built on first use and kept in ``state.context``.
+
+    Reads ``adapter``, ``scene`` (``deflation``), ``K``, ``M``, ``basis``, ``backend``, ``counters``.
+    Built lazily so that a run without full-order methods factorises nothing more.
+    """
+    if state.context is not None:
+        return state.context
+    adapter, basis, counters = state.adapter, state.basis, state.counters
+    shift_solver = adapter.shifted_solver if adapter.provides_shifted_solves else None
+    deflated = None
+    precond = deflation_preconditioner(state, shift_solver)
+    if precond is not None:
+        deflated = DeflatedSolver(state.K, state.M, state.phi, state.omega**2, basis.rigid, precond, counters)
+        Kp = DeflatedPinv(deflated, basis.rigid)
+    else:
+        Kp = PseudoInverse(state.K, state.M, basis.rigid, counters=counters, backend=state.backend,
+                           solver_factory=shift_solver)
+    shifted = adapter_shifted(shift_solver, state.n, counters) if shift_solver is not None else None
+    state.context = FullOrderContext(state.K, state.M, Kp, counters, state.backend, shifted, deflated,
+                                     keep_fields=state.want_fields)
+    return state.context

@@ -1,0 +1,99 @@
+"""One method (NF, DNF, MD, SMD; modal or full order) applied to one master mode."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..backbone import MethodResult
+from ..diagnostics import captured_share, floor_scale, merge_flags, one_two_flags, t_error, truncation_flags
+from ..evaluators import (Tolerances, dnf, md_full, md_modal, nf_modal, resonance_flags, retained_set, smd_full,
+                          smd_modal)
+from .context import full_order_context
+from .master import MasterData
+from .state import MODAL_METHODS, RunState
+
+
+def modal_method(name: str, p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, tol: Tolerances,
+                 labels: list, floor: np.ndarray | float | None = None) -> MethodResult:
+    """The modal evaluator ``name`` ("nf", "md_modal" or "smd_modal") of master ``p`` over modes ``S``."""
+    if name == "nf":
+        return nf_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
+    if name == "md_modal":
+        return md_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
+    if name == "smd_modal":
+        return smd_modal(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
+    raise KeyError(name)
+
+
+def run_modal(state: RunState, d: MasterData, ev: str) -> MethodResult:
+    """A modal evaluator over the retained set, with T again at the check amplitude and truncation flags."""
+    S = retained_set(d.p, state.n_ret, state.m)
+    r = modal_method(ev, d.p, state.omega, d.g_mod, d.h_mod, S, state.tol, state.labels, d.floor)
+    if d.g_chk is not None:
+        r2 = modal_method(ev, d.p, state.omega, d.g_chk, d.h_chk, S, state.tol, state.labels, d.floor)
+        r.T_error = t_error(r.T, r2.T)
+    frac = captured_share(d.p, d.st, state.full, d.g_all, S, state.M)
+    if frac is not None:
+        r.flags += truncation_flags(r, frac, len(S))
+    return r
+
+
+def run_dnf(state: RunState, d: MasterData) -> MethodResult:
+    """Direct normal form on the whole mesh, flagged for 1:2 resonances; keeps its solution in ``d.y``."""
+    p, st, omega = d.p, d.st, state.omega
+    dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
+    dh = st.h - st.h_check if st.h_check is not None else 0.0
+    r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh)
+    r.flags = merge_flags(r.flags, one_two_flags(p, omega[p], st, state.basis, full_order_context(state),
+                                                 floor_scale(st, state.M, state.tol), state.tol, state.adapter,
+                                                 state.counters))
+    return r
+
+
+def run_smd_full(state: RunState, d: MasterData) -> MethodResult:
+    """Static modal derivatives at full order (reusing DNF's K^+ solve when DNF ran first)."""
+    p, st, omega = d.p, d.st, state.omega
+    r = smd_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), y=d.y)
+    if st.Gv_check is not None:  # T again at the check amplitude: one more K^+ solve
+        r.T_error = t_error(r.T, smd_full(p, d.phi, omega[p], st.Gv_check, st.h_check, full_order_context(state)).T)
+    return r
+
+
+def run_md_full(state: RunState, d: MasterData) -> MethodResult:
+    """Modal derivatives at full order (bordered solves), the master's twins excluded, resonances flagged."""
+    p, st, omega, twins = d.p, d.st, state.omega, d.twins
+    tw = state.phi[:, twins] if twins else None
+    nr = state.basis.rigid.shape[1]
+    kw = dict(g=d.g_all, tol=state.tol, floor=d.floor, exclude=[nr + p] + [nr + t for t in twins],
+              twin_index=twins, labels=state.labels)
+    r = md_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), tw, **kw)
+    r.flags += resonance_flags("md", p, omega, d.g_all, [s for s in range(state.m) if s not in twins], 1.0,
+                               state.tol, state.labels, d.floor)
+    if st.Gv_check is not None and np.isfinite(r.T):  # T again at the check amplitude
+        r2 = md_full(p, d.phi, omega[p], st.Gv_check, st.h_check, full_order_context(state), tw, **kw)
+        r.T_error = t_error(r.T, r2.T)
+    return r
+
+
+def run_method(state: RunState, d: MasterData, name: str, ev: str) -> MethodResult:
+    """Method ``name`` (evaluator ``ev``) of master ``d.p``, named, with its STEP-accuracy flag and Gamma."""
+    if ev in MODAL_METHODS:
+        r = run_modal(state, d, ev)
+    elif ev == "dnf":
+        r = run_dnf(state, d)
+    elif ev == "smd_full":
+        r = run_smd_full(state, d)
+    elif ev == "md_full":
+        r = run_md_full(state, d)
+    else:  # pragma: no cover - resolve_methods only yields the above
+        raise KeyError(ev)
+    r.method = name
+    if ev in MODAL_METHODS:
+        r.retained_modes = len(retained_set(d.p, state.n_ret, state.m))
+    tolerance = state.policy.tolerance
+    if r.T_error is not None and r.T_error > tolerance:
+        r.flags.append({"kind": "step_accuracy", "value": float(r.T_error),
+                        "message": f"T changes by {r.T_error:.2e} (relative) between the two "
+                                   f"STEP amplitudes; tolerance {tolerance:.1e}"})
+    if state.gscale is not None:
+        r.gamma = state.gscale.gamma(r.T, d.w_max)
+    return r
