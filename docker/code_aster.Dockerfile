@@ -14,12 +14,18 @@ ENV DEBIAN_FRONTEND=noninteractive \
 WORKDIR /opt/stepnf
 COPY . /opt/stepnf
 # setup.sh installs the Debian packages it lists (apt-get) and the editable stepnf distributions
-RUN bash scripts/setup.sh \
- && rm -rf /var/lib/apt/lists/* /root/.cache/pip
+# (after dropping a host's .venv and .cache, should a builder ignore the .dockerignore file); the
+# sources are byte-compiled, since a read-only container cannot write __pycache__ at run time
+RUN rm -rf .venv .cache \
+ && bash scripts/setup.sh \
+ && rm -rf /var/lib/apt/lists/* /root/.cache/pip \
+ && .venv/bin/python -m compileall -q stepnf solvers
 # fail the build early if run_aster or the adapter is missing
 RUN command -v run_aster \
  && .venv/bin/python -c "import stepnf_code_aster; from stepnf.registry import installed_solvers; print(sorted(installed_solvers()))"
 
+# the mount point of the scenes' folder, present also in a read-only container
+RUN mkdir -p /scenes
 ENV PATH=/opt/stepnf/.venv/bin:$PATH
 WORKDIR /scenes
 ENTRYPOINT ["stepnf"]

@@ -6,8 +6,10 @@ folder (built in a temporary sibling folder and renamed when complete, so an
 interrupted build is never mistaken for a finished one); the image test turns
 it into a container base image, the Debian 13 test installs FEniCSx 0.9 in it.
 ``run_in_root`` runs a command inside such a tree (or a mounted container
-image) in a private mount namespace, with ``/proc``, ``/dev``, a fresh
-``/tmp`` and the given folders bound in, optionally as another user.
+image) in a private mount namespace, with ``/proc``, ``/dev`` (with a private
+``/dev/shm``), a read-only ``/sys``, a fresh ``/tmp`` and the given folders
+bound in, optionally as another user: what ``podman run`` or ``docker run``
+would give, where they cannot run.
 
 Both need root, ``debootstrap``, ``unshare`` and ``chroot``; :func:`require`
 skips the calling test where any is missing.
@@ -64,7 +66,7 @@ def run_in_root(root: Path, argv: list[str], *, binds: dict[str, str] | None = N
     ``binds`` maps host folders to absolute paths inside ``root`` (created if
     missing, unless ``read_only``); ``user`` is ``"UID:GID"`` for
     ``chroot --userspec``; ``read_only`` remounts the root itself read-only
-    (so only the binds and the fresh ``/tmp`` are writable); ``env`` replaces
+    (so only the binds, ``/dev`` and the fresh ``/tmp`` are writable); ``env`` replaces
     the environment (PATH and HOME have defaults). Output is captured as text.
     """
     binds = dict(binds or {})
@@ -72,9 +74,13 @@ def run_in_root(root: Path, argv: list[str], *, binds: dict[str, str] | None = N
     if read_only:  # a read-only bind of the tree on itself; writable mounts go on top
         script += [f"mount --bind {shlex.quote(str(root))} {shlex.quote(str(root))}",
                    f"mount -o remount,bind,ro {shlex.quote(str(root))}"]
-    script += [f"mount -t proc proc {shlex.quote(str(root / 'proc'))}",
-               f"mount --rbind /dev {shlex.quote(str(root / 'dev'))}",
-               f"mount -t tmpfs -o mode=1777 tmpfs {shlex.quote(str(root / 'tmp'))}"]
+    q = {name: shlex.quote(str(root / name)) for name in ("proc", "dev", "dev/shm", "sys", "tmp")}
+    script += [f"mount -t proc proc {q['proc']}",
+               f"mount --rbind /dev {q['dev']}",
+               f"if [ -d {q['dev/shm']} ]; then mount -t tmpfs -o mode=1777 tmpfs {q['dev/shm']}; fi",  # private
+               f"mount -t tmpfs -o mode=1777 tmpfs {q['tmp']}"]
+    if (root / "sys").is_dir():  # read-only, as in a container (hwloc, under MPI, reads the CPU topology)
+        script += [f"mount --rbind /sys {q['sys']}", f"mount -o remount,bind,ro {q['sys']}"]
     for host, inside in binds.items():
         target = root / inside.lstrip("/")
         if not read_only:
@@ -88,3 +94,36 @@ def run_in_root(root: Path, argv: list[str], *, binds: dict[str, str] | None = N
     base_env.update(env or {})
     return subprocess.run(["unshare", "--mount", "--fork", "/bin/sh", "-c", "\n".join(script)],
                           env=base_env, capture_output=True, text=True, timeout=timeout)
+
+
+def derived_rootfs(base: Path, name: str, packages: list[str], *, timeout: float = 1800.0) -> Path:
+    """``base`` plus the Debian ``packages``, built once and cached as ``.cache/rootfs/NAME``.
+
+    The base tree is copied (``cp -a``, never changed in place), the packages
+    are installed with ``apt-get`` chrooted in the copy, and the copy is renamed
+    into place when complete. The completion mark records the package list: a
+    different list rebuilds the tree rather than reusing a tree without them.
+    """
+    CACHE.mkdir(parents=True, exist_ok=True)
+    dest = CACHE / name
+    mark = " ".join(sorted(packages)) + "\n"
+    with open(CACHE / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (dest / COMPLETE).exists() and (dest / COMPLETE).read_text() == mark:
+            return dest
+        work = CACHE / f"{name}.partial"
+        shutil.rmtree(work, ignore_errors=True)
+        shutil.rmtree(dest, ignore_errors=True)
+        subprocess.run(["cp", "-a", str(base), str(work)], check=True, timeout=timeout)
+        (work / COMPLETE).unlink(missing_ok=True)
+        if Path("/etc/resolv.conf").exists():  # the chroot shares the host's network, not its resolver
+            shutil.copy("/etc/resolv.conf", work / "etc" / "resolv.conf")
+        install = ("apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "
+                   "--no-install-recommends " + shlex.join(packages) + " && apt-get clean")
+        done = run_in_root(work, ["/bin/sh", "-c", install], timeout=timeout)
+        if done.returncode != 0:
+            raise RuntimeError(f"installing {packages} in {work} failed:\n{done.stdout[-3000:]}\n"
+                               f"{done.stderr[-3000:]}")
+        (work / COMPLETE).write_text(mark)
+        work.rename(dest)
+    return dest
