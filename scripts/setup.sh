@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
-# Set up everything stepnf needs on Debian 12, idempotently: Debian packages
-# (FEniCSx, CalculiX, numpy/scipy/h5py built against them), then a virtual
-# environment .venv that sees them (--system-site-packages) with stepnf and its
-# solver adapters installed in editable mode. Fast when already done.
+# Set up everything stepnf needs on Debian 12 or 13, idempotently: Debian packages
+# (FEniCSx, CalculiX where Debian has it, numpy/scipy/h5py built against them), then
+# a virtual environment .venv that sees them (--system-site-packages) with stepnf and
+# its solver adapters installed in editable mode. Fast when already done.
+# Debian 12 gives FEniCSx 0.5 and CalculiX 2.20; Debian 13 gives FEniCSx 0.9 and no
+# calculix-ccx package: there the calculix adapter needs a ccx program on PATH.
 #   bash scripts/setup.sh          what the main job needs
 #   bash scripts/setup.sh tests    and what the test suite drives besides: debootstrap and
 #                                  podman (root file systems and container images built by the
@@ -19,17 +21,34 @@ cd "$root"
 
 apt_packages=(python3-venv python3-setuptools python3-wheel python3-numpy python3-scipy python3-h5py
   python3-matplotlib python3-meshio python3-pytest python3-dask python3-distributed
-  python3-dolfinx-real calculix-ccx)
+  python3-dolfinx-real libopenblas0)  # OpenBLAS, not the reference BLAS a minimal system falls back to
 if [ "$with_tests" -eq 1 ]; then apt_packages+=(debootstrap podman python3-vtk9); fi
+installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
+# CalculiX: the calculix-ccx package where Debian has one (12), else a ccx of the user's (13 has none)
+ccx_candidate() { apt-cache policy calculix-ccx 2>/dev/null | grep -q "Candidate: [0-9]"; }
+apt_lists() { compgen -G "/var/lib/apt/lists/*_Packages*" >/dev/null; }
+want_ccx=0
+if ! command -v ccx >/dev/null 2>&1 && ! installed calculix-ccx; then
+  if ! apt_lists || ccx_candidate; then want_ccx=1; apt_packages+=(calculix-ccx); fi
+fi
 missing=()
-for p in "${apt_packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
-done
+for p in "${apt_packages[@]}"; do installed "$p" || missing+=("$p"); done
 if [ ${#missing[@]} -gt 0 ]; then
-  echo "setup: installing Debian packages: ${missing[*]}"
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  if [ "$want_ccx" -eq 1 ] && ! ccx_candidate; then  # known only now that the package lists are there
+    kept=(); for p in "${missing[@]}"; do [ "$p" = calculix-ccx ] || kept+=("$p"); done
+    missing=("${kept[@]+"${kept[@]}"}")
+  fi
+  if [ ${#missing[@]} -gt 0 ]; then
+    echo "setup: installing Debian packages: ${missing[*]}"
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  fi
+fi
+if ! command -v ccx >/dev/null 2>&1; then
+  echo "setup: this Debian has no calculix-ccx package (Debian 13 has none): stepnf and the FEniCSx" \
+    "adapters are set up without CalculiX; the calculix adapter needs the CalculiX program 'ccx' on" \
+    "PATH (build it from source, or use Debian 12), and its tests are skipped without it" >&2
 fi
 
 if [ ! -x .venv/bin/python ]; then

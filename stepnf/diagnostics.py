@@ -168,8 +168,18 @@ def inverse_mass_norm2(M: sp.spmatrix, v: np.ndarray) -> float:
     if not np.any(v):
         return 0.0
     d = np.asarray(M.diagonal()).ravel()
-    x, info = spla.cg(M, v, M=sp.diags(1.0 / d), tol=1e-10, atol=0.0, maxiter=500)
+    x, info = spla.cg(M, v, M=sp.diags(1.0 / d), atol=0.0, maxiter=500, **_cg_rtol(1e-10))
     return float(v @ x)
+
+
+def _cg_rtol(rtol: float) -> dict[str, float]:
+    """The relative tolerance of ``scipy.sparse.linalg.cg``: ``rtol`` since SciPy 1.12 (Debian 13's
+    1.15 refuses ``tol``), ``tol`` before (Debian 12's 1.10)."""
+    import inspect
+
+    import scipy.sparse.linalg as spla
+
+    return {"rtol" if "rtol" in inspect.signature(spla.cg).parameters else "tol": rtol}
 
 
 def captured_fraction_of_norm(g_retained: np.ndarray, norm2: float) -> float:

@@ -13,7 +13,7 @@ pytest.importorskip("dolfinx")
 
 from stepnf.cli import main  # noqa: E402
 from stepnf.errors import OutputError, OutputWarning  # noqa: E402
-from stepnf_fenicsx import _compat  # noqa: E402
+from stepnf_fenicsx import _compat, jitcache  # noqa: E402
 
 pytestmark = pytest.mark.fenicsx
 
@@ -27,10 +27,10 @@ def env(monkeypatch, tmp_path):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
-    monkeypatch.setattr(_compat, "__file__", str(tmp_path / "site" / "pkg" / "stepnf_fenicsx" / "_compat.py"))
-    _compat._resolve_cache.cache_clear()
+    monkeypatch.setattr(jitcache, "__file__", str(tmp_path / "site" / "pkg" / "stepnf_fenicsx" / "jitcache.py"))
+    jitcache._resolve_cache.cache_clear()
     yield tmp_path
-    _compat._resolve_cache.cache_clear()
+    jitcache._resolve_cache.cache_clear()
 
 
 def unwritable(folder: Path) -> Path:
@@ -75,7 +75,7 @@ def test_read_only_stepnf_cache_dir(env, monkeypatch):
 
 def test_source_checkout_uses_its_own_cache(monkeypatch):
     monkeypatch.delenv("STEPNF_CACHE_DIR", raising=False)
-    _compat._resolve_cache.cache_clear()
+    jitcache._resolve_cache.cache_clear()
     repo = Path(_compat.__file__).resolve().parents[3]
     if not (repo / "stepnf").is_dir():
         pytest.skip("the adapter is installed, not run from a checkout")
@@ -87,7 +87,7 @@ def test_source_checkout_uses_its_own_cache(monkeypatch):
         else:
             assert _compat.cache_dir() == repo / ".cache" / "fenicsx"
     finally:
-        _compat._resolve_cache.cache_clear()
+        jitcache._resolve_cache.cache_clear()
 
 
 def test_installed_uses_the_xdg_cache_silently(env):
@@ -130,6 +130,19 @@ def test_nothing_writable_is_an_error(env, monkeypatch):
     unwritable(env / "xdg")
     monkeypatch.setattr(tempfile, "tempdir", str(unwritable(env / "tmp2")))
     with pytest.raises(OutputError, match="no writable folder for the FEniCSx form cache.*STEPNF_CACHE_DIR"):
+        _compat.cache_dir()
+
+
+def test_no_temporary_folder_at_all_is_an_error_naming_the_variable(env, monkeypatch):
+    """tempfile.gettempdir() itself fails (FileNotFoundError) when no candidate folder is writable."""
+    unwritable(env / "xdg")
+    monkeypatch.setattr(tempfile, "tempdir", None)
+
+    def none_writable():
+        raise FileNotFoundError("No usable temporary directory found")
+
+    monkeypatch.setattr(tempfile, "gettempdir", none_writable)
+    with pytest.raises(OutputError, match="no writable temporary folder either; set STEPNF_CACHE_DIR"):
         _compat.cache_dir()
 
 
@@ -186,7 +199,9 @@ def test_first_compilation_prints_nothing_but_stepnf_lines(env, monkeypatch, cap
     assert not (env / "xdg").exists()  # elements too are compiled into the stepnf cache
     assert err and all(line.startswith("[stepnf] ") for line in err.splitlines()), err
     first = out.splitlines()
-    assert first[0].startswith("stepnf: fenicsx") and first[-1].startswith("results: "), out
+    assert first[0].startswith("stepnf: fenicsx"), out
+    tail = first[next(i for i, line in enumerate(first) if line.startswith("results: ")):]
+    assert all(Path(line.split(": ", 1)[-1]).exists() for line in tail), out  # "results: ...", then the other files
     for word in ("gcc", "build_ext", "cffi", "ffcx", "####", "warning"):
         assert word not in out.lower() + err.lower()
 

@@ -294,6 +294,7 @@ def plate_inp(a: float, h: float, n: int) -> str:
     g = np.empty(2 * n + 1)
     g[0::2] = a / 2 * np.sin(np.pi * t / 2)
     g[1::2] = (g[0:-1:2] + g[2::2]) / 2
+    g = g.tolist()  # Python floats: their repr is the number under numpy 2 too (not "np.float64(...)")
     ids: dict[tuple[int, int, int], int] = {}
     rows = []
     for k, z in enumerate((-h / 2, 0.0, h / 2)):  # no face centre (odd i and j); the middle layer: corners only

@@ -102,8 +102,8 @@ def test_the_parallel_run_is_distributed_and_written_once(runs):
     assert sum(parallel["model"]["shifted_solvers"].values()) >= 1  # the adapter's solves were used
     assert serial["model"]["adapter"] == "FenicsxAdapter"
     assert serial["model"]["n_dofs"] == parallel["model"]["n_dofs"]
-    # rank 0 alone writes: one results file, no checkpoint folder left behind
-    assert sorted(p.name for p in out.iterdir()) == ["cap.h5"]
+    # rank 0 alone writes: one results file and one set of field files, no checkpoint folder left behind
+    assert sorted(p.name for p in out.iterdir()) == ["cap.h5", "cap_fields.h5", "cap_fields.vtu", "cap_fields.xdmf"]
 
 
 def test_parallel_matches_serial(runs):

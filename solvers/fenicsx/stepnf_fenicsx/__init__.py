@@ -1,4 +1,4 @@
-"""stepnf's reference solver adapter: St Venant-Kirchhoff solids assembled by FEniCSx (dolfinx 0.5).
+"""stepnf's reference solver adapter: St Venant-Kirchhoff solids assembled by FEniCSx (DOLFINx 0.5 or 0.9).
 
 Registered under the entry-point group ``stepnf.solvers`` as ``fenicsx``.
 Importing this package does not import dolfinx; the adapter does when built.

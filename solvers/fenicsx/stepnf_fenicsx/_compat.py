@@ -1,25 +1,37 @@
-"""Every dolfinx call whose spelling changed between versions lives here (written against 0.5.2).
+"""Every dolfinx call whose spelling changed between versions lives here.
 
-Newer dolfinx (0.6+) renamed ``jit_params`` to ``jit_options``,
-``form_compiler_params`` to ``form_compiler_options``, moved
-``VectorFunctionSpace`` to ``functionspace(mesh, ("Lagrange", k, (3,)))`` and
-made ``create_mesh`` take a basix element; adapt this module only.
+Supported: DOLFINx 0.5 (Debian 12) and 0.9 (Debian 13), both tested; 0.8 and
+0.10 are written from their documented API (the differences to 0.9 are
+small). What moved, and how this module tells the versions apart (by feature,
+not by version number, so an intermediate release takes the right branch):
+
+* coordinate element of a mesh: ``ufl.VectorElement`` (0.5, 0.6) ->
+  ``basix.ufl.element(..., shape=(gdim,))`` (0.7+): whether ``basix.ufl`` exists;
+* ``create_mesh(comm, cells, x, domain, ghost_mode=...)`` (0.5, 0.6) ->
+  ``create_mesh(comm, cells, x, e, partitioner=...)`` (0.7-0.10; later
+  releases swap ``x`` and ``e``): the parameter names, passed by keyword;
+* ``VectorFunctionSpace``/``FunctionSpace``/``TensorFunctionSpace`` ->
+  ``functionspace(mesh, (family, degree, shape))`` (0.7+);
+* dofmaps: ``AdjacencyList`` (``.array``) -> 2D numpy arrays (0.7+);
+  ``topology.original_cell_index``: one array -> a list per cell type (0.10);
+* ``jit_params`` -> ``jit_options`` (0.6+), ``DOLFINX_DEFAULT_JIT_PARAMETERS``
+  -> ``DOLFINX_DEFAULT_JIT_OPTIONS``;
+* ``Expression.eval(cells)`` -> ``Expression.eval(mesh, cells)`` (0.8+);
+* ``la.ScatterMode`` -> ``la.InsertMode`` (0.7+);
+* the element degree: ``ufl_element().degree()`` -> a property (basix.ufl).
+
+Every other module of the adapter calls these, never the spellings above.
 """
 from __future__ import annotations
 
 import contextlib
-import functools
 import inspect
-import io
-import logging
-import os
-import sys
-import tempfile
-import warnings
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+
+from . import jitcache
 
 #: meshio cell-type name -> (dolfinx cell name, geometry degree, nodes per cell)
 CELLS = {
@@ -27,237 +39,228 @@ CELLS = {
     "hexahedron": ("hexahedron", 1, 8),
     "tetra10": ("tetrahedron", 2, 10),
     "tetra": ("tetrahedron", 1, 4),
+    "triangle6": ("triangle", 2, 6),
 }
 
 
 def cache_dir() -> Path:
-    """Folder of FEniCSx's form-compilation cache, created and tested writable (a probe file).
-
-    ``$STEPNF_CACHE_DIR/fenicsx`` when that variable is set (an :class:`OutputError`
-    naming it if no file can be written there); else ``<repository>/.cache/fenicsx``
-    when the adapter runs from a writable source checkout; else
-    ``$XDG_CACHE_HOME/stepnf/fenicsx`` (``~/.cache/stepnf/fenicsx``); else, with one
-    :class:`OutputWarning`, ``<temporary folder>/stepnf-<uid>/fenicsx`` (a read-only
-    image run by a user without a writable home). Resolved once per environment.
-    """
-    env = os.environ.get("STEPNF_CACHE_DIR")
-    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return _resolve_cache(env or None, xdg, tempfile.gettempdir())
+    """Folder of FEniCSx's form-compilation cache (:func:`stepnf_fenicsx.jitcache.cache_dir`)."""
+    return jitcache.cache_dir()
 
 
-@functools.lru_cache(maxsize=None)
-def _resolve_cache(env: str | None, xdg: str, tmp: str) -> Path:
-    from stepnf.atomic import check_folder
-    from stepnf.errors import OutputError, OutputWarning
-
-    if env is not None:
-        path = Path(env).expanduser() / "fenicsx"
-        why = check_folder(path)
-        if why:
-            raise OutputError(f"STEPNF_CACHE_DIR={env}: the FEniCSx form cache {path} is not usable ({why}); "
-                              "set STEPNF_CACHE_DIR to a writable folder or unset it", path=path)
-        return path
-    repo = Path(__file__).resolve().parents[3]
-    if (repo / "stepnf").is_dir() and (repo / "solvers").is_dir() and not check_folder(repo / ".cache" / "fenicsx"):
-        return repo / ".cache" / "fenicsx"
-    home = Path(xdg).expanduser() / "stepnf" / "fenicsx"
-    why_home = check_folder(home)
-    if not why_home:
-        return home
-    uid = os.getuid() if hasattr(os, "getuid") else os.getpid()
-    path = Path(tmp) / f"stepnf-{uid}" / "fenicsx"
-    why = check_folder(path)
-    if not why and hasattr(os, "getuid") and path.parent.stat().st_uid != uid:  # another user's folder in /tmp
-        path = Path(tempfile.mkdtemp(prefix=f"stepnf-{uid}-", dir=tmp)) / "fenicsx"
-        why = check_folder(path)
-    if why:
-        raise OutputError(f"no writable folder for the FEniCSx form cache: {why_home}; {why}; "
-                          "set STEPNF_CACHE_DIR to a writable folder", path=home)
-    _plain_warnings()
-    warnings.warn(f"form cache: {home} not writable ({why_home}), using {path}", OutputWarning, stacklevel=3)
-    return path
+@contextlib.contextmanager
+def quiet_jit():
+    """Compile in :func:`cache_dir` without a word on the terminal (:func:`stepnf_fenicsx.jitcache.quiet_jit`)."""
+    with jitcache.quiet_jit(jit_defaults()):
+        yield
 
 
+def jit_defaults() -> dict | None:
+    """dolfinx's table of default JIT options (renamed in 0.6), or None."""
+    try:
+        from dolfinx import jit
+    except ImportError:
+        return None
+    jitcache.plain_warnings()
+    return getattr(jit, "DOLFINX_DEFAULT_JIT_PARAMETERS", None) or getattr(jit, "DOLFINX_DEFAULT_JIT_OPTIONS", None)
+
+
+def jit_keyword(fn) -> str:
+    """The name of the JIT options argument of ``fn`` (``fem.form``, ``fem.Expression``)."""
+    return "jit_params" if "jit_params" in inspect.signature(fn).parameters else "jit_options"
+
+
+def _jit_options() -> dict:
+    return {"cache_dir": str(cache_dir()), "cffi_extra_compile_args": ["-O2"]}
+
+
+# ------------------------------------------------------------ MPI
 def comm_self():
     from mpi4py import MPI
 
     return MPI.COMM_SELF
 
 
+def comm_world():
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD
+
+
+def world_size() -> int:
+    """Number of MPI processes this program was started with (1 without ``mpirun``)."""
+    return int(comm_world().size)
+
+
+# ------------------------------------------------------------ meshes
+def coordinate_domain(cell: str, degree: int, gdim: int):
+    """The ``ufl.Mesh`` of a Lagrange geometry of ``degree`` on ``cell`` in ``gdim`` dimensions."""
+    import ufl
+
+    try:
+        import basix.ufl
+    except ImportError:  # dolfinx 0.5, 0.6
+        return ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(cell), degree, dim=gdim))
+    return ufl.Mesh(basix.ufl.element("Lagrange", cell, degree, shape=(gdim,)))
+
+
 def create_mesh(points: np.ndarray, cells: np.ndarray, cell_type: str, comm=None):
     """A dolfinx mesh from meshio-ordered (VTK) cells; returns ``(mesh, original_point_index)``.
 
-    ``comm`` (default ``MPI.COMM_SELF``: a serial mesh) is the communicator the
-    mesh is distributed over; every rank may pass the whole mesh, only rank 0's
-    copy is used and dolfinx's graph partitioner distributes the cells.
+    ``cell_type`` one of :data:`CELLS` (the solids' cells, and ``triangle6``
+    for the shallow shell's plan view; the geometric dimension is
+    ``points.shape[1]``). ``comm`` (default ``MPI.COMM_SELF``: a serial mesh)
+    is the communicator the mesh is distributed over; every rank may pass the
+    whole mesh, only rank 0's copy is used and dolfinx's graph partitioner
+    distributes the cells (no ghost cells: cell integrals only).
     ``original_point_index[i]`` is the row of ``points`` that became (local)
     geometry node ``i``.
     """
-    import ufl
     from dolfinx import cpp, mesh as dmesh
 
     if cell_type not in CELLS:
         raise ValueError(f"Unsupported cell type {cell_type!r}. Pick one of {list(CELLS)}")
     name, degree, n_nodes = CELLS[cell_type]
-    ct = dmesh.CellType.hexahedron if name == "hexahedron" else dmesh.CellType.tetrahedron
-    perm = np.asarray(cpp.io.perm_vtk(ct, n_nodes))
-    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.Cell(name), degree))
-    cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64)[:, perm])
+    perm = np.asarray(cpp.io.perm_vtk(getattr(dmesh.CellType, name), n_nodes))
     points = np.ascontiguousarray(points, dtype=float)
+    domain = coordinate_domain(name, degree, points.shape[1])
+    cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64)[:, perm])
+    comm = comm or comm_self()
+    distributed = comm.size > 1
+    if distributed and comm.rank != 0:  # rank 0 hands in the mesh, the partitioner spreads the cells
+        cells, points = cells[:0], points[:0]
+    params = inspect.signature(dmesh.create_mesh).parameters
+    if "domain" in params:  # 0.5, 0.6
+        extra = {"domain": domain}
+        if distributed:
+            extra["ghost_mode"] = dmesh.GhostMode.none
+    else:
+        extra = {"e": domain}
+        if distributed:
+            extra["partitioner"] = dmesh.create_cell_partitioner(dmesh.GhostMode.none)
     with quiet_jit():
-        if comm is None or comm.size == 1:
-            msh = dmesh.create_mesh(comm or comm_self(), cells, points, domain)
-        else:  # rank 0 hands in the mesh, the partitioner spreads the cells (no ghost cells: cell integrals only)
-            if comm.rank != 0:
-                cells, points = cells[:0], points[:0]
-            msh = dmesh.create_mesh(comm, cells, points, domain, ghost_mode=dmesh.GhostMode.none)
+        msh = dmesh.create_mesh(comm, cells=cells, x=points, **extra)
     return msh, np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
 
 
-def vector_space(msh, degree: int):
+def original_cell_index(msh) -> np.ndarray:
+    """For each local cell (owned, then ghost), its row in the cells given to :func:`create_mesh`."""
+    index = msh.topology.original_cell_index
+    if isinstance(index, (list, tuple)):  # 0.10: one array per cell type
+        index = index[0]
+    return np.asarray(index, dtype=np.int64)
+
+
+def cell_name(msh) -> str:
+    """The cell type's name (``"hexahedron"``, ``"triangle"``, ...)."""
+    topology = msh.topology
+    return topology.cell_name() if hasattr(topology, "cell_name") else topology.cell_type.name
+
+
+def geometry_dofmap(msh) -> np.ndarray:
+    """``(local cells, geometry nodes per cell)``: the geometry nodes of each cell."""
+    dofmap = msh.geometry.dofmap
+    if hasattr(dofmap, "array"):  # AdjacencyList (0.5, 0.6)
+        return np.asarray(dofmap.array).reshape(-1, dofmap.offsets[1] - dofmap.offsets[0])
+    return np.asarray(dofmap).reshape(len(dofmap), -1)
+
+
+def num_cells(msh) -> int:
+    """Number of cells this process owns."""
+    return int(msh.topology.index_map(msh.topology.dim).size_local)
+
+
+# ------------------------------------------------------------ spaces and functions
+def vector_space(msh, degree: int, dim: int | None = None):
+    """Lagrange space of ``degree`` with ``dim`` components (default: the mesh's geometric dimension)."""
+    from dolfinx import fem
+
+    dim = int(msh.geometry.x.shape[1] if dim is None else dim)
+    with quiet_jit():
+        if hasattr(fem, "functionspace"):
+            return fem.functionspace(msh, ("Lagrange", int(degree), (dim,)))
+        return fem.VectorFunctionSpace(msh, ("Lagrange", int(degree)), dim=dim)
+
+
+def scalar_space(msh, family: str, degree: int, shape: tuple[int, ...] = ()):
+    """Space of scalar (``shape = ()``) or tensor-valued functions of ``family`` (``"Lagrange"``, ``"DG"``)."""
     from dolfinx import fem
 
     with quiet_jit():
-        return fem.VectorFunctionSpace(msh, ("Lagrange", degree))
+        if hasattr(fem, "functionspace"):
+            return fem.functionspace(msh, (family, int(degree), tuple(shape)) if shape else (family, int(degree)))
+        if shape:
+            return fem.TensorFunctionSpace(msh, (family, int(degree)), shape=tuple(shape))
+        return fem.FunctionSpace(msh, (family, int(degree)))
+
+
+def cell_dofmap(V) -> np.ndarray:
+    """``(local cells, dofs per cell)``: the dof nodes (blocks) of each cell of this process."""
+    dofs = V.dofmap.list
+    if hasattr(dofs, "array"):  # AdjacencyList (0.5, 0.6)
+        return np.asarray(dofs.array, dtype=np.int64).reshape(-1, dofs.offsets[1] - dofs.offsets[0])
+    return np.asarray(dofs, dtype=np.int64).reshape(len(dofs), -1)
+
+
+def element_degree(V) -> int:
+    """Polynomial degree of the element of ``V``."""
+    degree = V.ufl_element().degree
+    return int(degree() if callable(degree) else degree)
+
+
+def constant(msh, value):
+    """A ``fem.Constant`` holding a float or a float array."""
+    from dolfinx import fem
+
+    value = np.asarray(value, dtype=float)
+    return fem.Constant(msh, float(value) if value.ndim == 0 else value)
 
 
 def cell_function(msh, values: np.ndarray):
     """A piecewise-constant (DG0) function: on each cell of this process, ``values[row]`` with ``row`` the
-    cell's row in the input cells of :func:`create_mesh` (``topology.original_cell_index``);
+    cell's row in the input cells of :func:`create_mesh` (:func:`original_cell_index`);
     ``values`` (input cells,) or (input cells, *shape) (a scalar or tensor field)."""
     from dolfinx import fem
 
     values = np.asarray(values, dtype=float)
     shape = values.shape[1:]
-    with quiet_jit():
-        W = fem.TensorFunctionSpace(msh, ("DG", 0), shape=shape) if shape else fem.FunctionSpace(msh, ("DG", 0))
+    W = scalar_space(msh, "DG", 0, shape)
     fn = fem.Function(W)
     im = msh.topology.index_map(msh.topology.dim)
     n = im.size_local + im.num_ghosts
-    rows = np.asarray(msh.topology.original_cell_index, dtype=np.int64)[:n]
-    dofs = np.asarray(W.dofmap.list.array, dtype=np.int64).reshape(n, -1)[:, 0]
+    rows = original_cell_index(msh)[:n]
+    dofs = cell_dofmap(W)[:n, 0]
     bs = int(W.dofmap.index_map_bs)
     fn.x.array.reshape(-1, bs)[dofs] = values[rows].reshape(n, bs)
     fn.x.scatter_forward()
     return fn
 
 
-@contextlib.contextmanager
-def quiet_jit():
-    """Compile in :func:`cache_dir` without a word on the terminal.
+def expression(expr, points: np.ndarray):
+    """A compiled ``fem.Expression`` of ``expr`` at reference ``points`` (k, tdim) of a cell."""
+    from dolfinx import fem
 
-    Forms AND elements (at mesh and function-space creation) are compiled on
-    first use. Three kinds of chatter are silenced: (1) INFO lines ("running
-    build_ext", the gcc command lines): the build logs through the root logger,
-    to which dolfinx attached a handler, and lowers that logger's level itself
-    (distutils' ``set_threshold``), so a filter on the root logger drops what is
-    below WARNING, and the level is put back afterwards; (2) what gcc or a C
-    library prints on the process's own stdout/stderr (file descriptors 1 and 2,
-    redirected to a temporary file meanwhile; its text is attached to an
-    exception raised in the block, so a failed compilation still says why);
-    (3) Python warnings are kept and shown after the block. dolfinx's default
-    cache folder (``~/.cache/fenics``, used for elements) is :func:`cache_dir`
-    meanwhile, so a read-only home does not matter.
-    """
-    folder = cache_dir()  # before the redirection: its warning must reach the user
-    root = logging.getLogger()
-    level = root.level
-    drop_info = _BelowWarning()
-    root.addFilter(drop_info)
-    defaults = _jit_defaults()
-    saved = defaults.get("cache_dir") if defaults is not None else None
-    if saved is not None:
-        defaults["cache_dir"] = (folder, *saved[1:])
-    try:
-        with warnings.catch_warnings(record=True) as caught, _silent_fds() as captured:
-            try:
-                yield
-            except BaseException as exc:
-                text = _read_tail(captured)
-                if text and hasattr(exc, "add_note"):
-                    exc.add_note(f"output of the just-in-time compilation:\n{text}")
-                raise
-    finally:
-        if saved is not None:
-            defaults["cache_dir"] = saved
-        root.removeFilter(drop_info)
-        root.setLevel(level)
-    for w in caught:
-        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+    with quiet_jit():
+        return fem.Expression(expr, np.ascontiguousarray(points, dtype=float),
+                              **{jit_keyword(fem.Expression.__init__): _jit_options()})
 
 
-@functools.lru_cache(maxsize=None)
-def _plain_warnings() -> None:
-    """Undo ``logging.captureWarnings(True)`` done by ``import ffcx``: it showed every warning of a
-    run as ``WARNING:py.warnings:...`` through the root logger instead of stepnf's own line."""
-    with contextlib.suppress(ImportError):
-        import ffcx  # noqa: F401
-        logging.captureWarnings(False)
-
-
-def _jit_defaults() -> dict | None:
-    """dolfinx's table of default JIT options (renamed in 0.6), or None."""
-    try:
-        from dolfinx import jit
-    except ImportError:
-        return None
-    _plain_warnings()
-    return getattr(jit, "DOLFINX_DEFAULT_JIT_PARAMETERS", None) or getattr(jit, "DOLFINX_DEFAULT_JIT_OPTIONS", None)
-
-
-@contextlib.contextmanager
-def _silent_fds():
-    """Point file descriptors 1 and 2 to a temporary file (yielded) for the block's duration."""
-    for stream in (sys.stdout, sys.stderr, sys.__stdout__, sys.__stderr__):
-        with contextlib.suppress(Exception):
-            stream.flush()
-    try:
-        sink = tempfile.TemporaryFile()
-        saved = [os.dup(1), os.dup(2)]
-    except OSError:  # no file descriptors to spare: chatter is better than a failure
-        yield None, None
-        return
-    text = io.StringIO()  # what Python code prints (sys.stdout may be a wrapper that is no file descriptor)
-    try:
-        os.dup2(sink.fileno(), 1)
-        os.dup2(sink.fileno(), 2)
-        with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
-            yield sink, text
-    finally:
-        for stream in (sys.__stdout__, sys.__stderr__):
-            with contextlib.suppress(Exception):
-                stream.flush()
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        os.close(saved[0])
-        os.close(saved[1])
-        sink.close()
-
-
-def _read_tail(captured, limit: int = 4000) -> str:
-    sink, text = captured
-    if sink is None:
-        return ""
-    out = text.getvalue()
-    with contextlib.suppress(OSError):
-        sink.seek(0)
-        out = sink.read().decode("utf-8", "replace") + out
-    return out[-limit:].strip()
-
-
-class _BelowWarning(logging.Filter):
-    def filter(self, record: logging.LogRecord) -> bool:
-        return record.levelno >= logging.WARNING
+def evaluate(compiled, msh, cells: np.ndarray) -> np.ndarray:
+    """``(len(cells), points * value size)``: a compiled :func:`expression` on local ``cells``."""
+    cells = np.asarray(cells, dtype=np.int32)
+    if "mesh" in inspect.signature(compiled.eval).parameters:  # 0.8+
+        out = compiled.eval(msh, cells)
+    else:
+        out = compiled.eval(cells)
+    return np.asarray(out).reshape(len(cells), -1)
 
 
 def form(expr):
     """Compile a UFL form with the project's cache folder (:func:`cache_dir`)."""
     from dolfinx import fem
 
-    jit = {"cache_dir": str(cache_dir()), "cffi_extra_compile_args": ["-O2"]}
-    key = "jit_params" if "jit_params" in inspect.signature(fem.form).parameters else "jit_options"
     with quiet_jit():
-        return fem.form(expr, **{key: jit})
+        return fem.form(expr, **{jit_keyword(fem.form): _jit_options()})
 
 
 def assemble_vector(compiled) -> np.ndarray:
@@ -290,17 +293,6 @@ def set_values(fn, values: np.ndarray) -> None:
     fn.x.array[:] = values
 
 
-def comm_world():
-    from mpi4py import MPI
-
-    return MPI.COMM_WORLD
-
-
-def world_size() -> int:
-    """Number of MPI processes this program was started with (1 without ``mpirun``)."""
-    return int(comm_world().size)
-
-
 def assemble_petsc_matrix(compiled):
     """Assemble a bilinear form into a (distributed) PETSc matrix, no boundary conditions; caller owns it."""
     from dolfinx.fem import petsc
@@ -318,5 +310,5 @@ def assemble_owned(compiled, n_owned: int) -> np.ndarray:
     from dolfinx import fem, la
 
     vec = fem.assemble_vector(compiled)
-    vec.scatter_reverse(la.ScatterMode.add)
+    vec.scatter_reverse(la.InsertMode.add if hasattr(la, "InsertMode") else la.ScatterMode.add)
     return np.array(vec.array[:n_owned], copy=True)

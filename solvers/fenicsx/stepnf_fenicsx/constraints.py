@@ -33,6 +33,8 @@ import numpy as np
 from stepnf.boundary import (BOUNDARY_KEY, DOF_NAMES, BoundaryCondition, FreeDofs, boundary_conditions,
                              select_nodes)
 
+from . import _compat
+
 
 def as_conditions(boundary: Sequence[BoundaryCondition | Mapping[str, Any]] | None,
                   scene_file: str | Path | None = None) -> list[BoundaryCondition]:
@@ -64,9 +66,9 @@ def dof_node_mask(V: Any, input_index: np.ndarray, mask: np.ndarray) -> np.ndarr
     space ``V``, from ``mask`` over the mesh file's nodes (see the module docstring);
     ``input_index[g]`` is the file node of geometry node ``g``."""
     msh = V.mesh
-    n_cells = msh.topology.index_map(msh.topology.dim).size_local
-    geo = np.asarray(msh.geometry.dofmap.array).reshape(n_cells, -1)
-    dofs = np.asarray(V.dofmap.list.array).reshape(n_cells, -1)
+    n_cells = _compat.num_cells(msh)
+    geo = _compat.geometry_dofmap(msh)[:n_cells]
+    dofs = _compat.cell_dofmap(V)[:n_cells]
     im = V.dofmap.index_map
     out = np.zeros((im.size_local + im.num_ghosts, 3), dtype=bool)
     at_geo = mask[np.asarray(input_index)[geo]]  # (cells, geometry nodes, 3)
@@ -77,7 +79,7 @@ def dof_node_mask(V: Any, input_index: np.ndarray, mask: np.ndarray) -> np.ndarr
     import basix
 
     layout = V.dofmap.dof_layout
-    topology = basix.topology(getattr(basix.CellType, msh.topology.cell_name()))
+    topology = basix.topology(getattr(basix.CellType, _compat.cell_name(msh)))
     for dim, entities in enumerate(topology):
         for i, vertices in enumerate(entities):
             fixed = np.logical_and.reduce(at_geo[:, vertices], axis=1)  # (cells, 3): every vertex fixed

@@ -69,15 +69,14 @@ class MaterialField:
     """
 
     def __init__(self, msh: Any, material: Any):
-        from dolfinx import fem
-
         mats, index = material.used() if isinstance(material, CellMaterials) else ([material], None)
         self.isotropic = all(m.isotropic for m in mats)
         values = [np.array(lame(m)) if self.isotropic else np.asarray(m.C, dtype=float) for m in mats]
         rho = [m.rho for m in mats]
         if len(mats) == 1:
-            self.rho = fem.Constant(msh, float(rho[0]))
-            fields = [fem.Constant(msh, v) for v in values[0]] if self.isotropic else [fem.Constant(msh, values[0])]
+            self.rho = _compat.constant(msh, float(rho[0]))
+            fields = ([_compat.constant(msh, v) for v in values[0]] if self.isotropic
+                      else [_compat.constant(msh, values[0])])
         else:
             self.rho = _compat.cell_function(msh, np.asarray(rho, dtype=float)[index])
             table = np.asarray(values)[index]  # (input cells, 2) or (input cells, 6, 6)

@@ -78,14 +78,7 @@ INPLANE_MASS_FACTOR = 1e-3
 
 def _create_disk_mesh(points: np.ndarray, cells: np.ndarray):
     """A serial dolfinx mesh of ``triangle6`` cells (VTK order) with quadratic geometry."""
-    import ufl
-    from dolfinx import cpp, mesh as dmesh
-
-    perm = np.asarray(cpp.io.perm_vtk(dmesh.CellType.triangle, 6))
-    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.triangle, 2))
-    with _compat.quiet_jit():
-        return dmesh.create_mesh(_compat.comm_self(), np.ascontiguousarray(cells[:, perm], dtype=np.int64),
-                                 np.ascontiguousarray(points, dtype=float), domain)
+    return _compat.create_mesh(points, cells, "triangle6")[0]
 
 
 #: The edge conditions of the shell: the directions fixed on its rim -> the condition's name.
@@ -155,8 +148,6 @@ class ShallowShellAdapter(FormsAdapter):
                  inplane_inertia: bool = DEFAULTS["inplane_inertia"], penalty: float = DEFAULTS["penalty"],
                  degree: int = DEFAULTS["degree"], quadrature_degree: int | None = None,
                  boundary: Sequence[BoundaryCondition | Mapping[str, Any]] = (), scene_file: Path | None = None):
-        from dolfinx import fem
-
         from .shallow_shell_forms import MarguerreForms
 
         t0 = time.perf_counter()
@@ -176,8 +167,7 @@ class ShallowShellAdapter(FormsAdapter):
         self.edge = shell_edge(self.boundary, points, float(a), scene_file)
         self.n_cells = len(cells)
         msh = _create_disk_mesh(points, cells)
-        with _compat.quiet_jit():
-            self._V = fem.VectorFunctionSpace(msh, ("Lagrange", int(degree)), dim=3)
+        self._V = _compat.vector_space(msh, int(degree), dim=3)
         xyz, bs = _compat.dof_layout(self._V)
         assert bs == 3
         self._nodes = xyz[:, :2].copy()

@@ -63,16 +63,14 @@ def cell_diameters(msh):
     import numpy as np
     from dolfinx import fem
 
-    with _compat.quiet_jit():
-        W = fem.FunctionSpace(msh, ("DG", 0))
+    W = _compat.scalar_space(msh, "DG", 0)
     x = msh.geometry.x
-    gdofs = np.asarray(msh.geometry.dofmap.array).reshape(-1, msh.geometry.dofmap.offsets[1])
+    gdofs = _compat.geometry_dofmap(msh)
     v = x[gdofs[:, :3]]  # the first three geometry nodes of a triangle are its vertices
     diam = np.max(np.stack([np.linalg.norm(v[:, i] - v[:, j], axis=1) for i, j in ((0, 1), (1, 2), (2, 0))]),
                   axis=0)
     fn = fem.Function(W)
-    n_cells = len(gdofs)
-    dofs = np.array([W.dofmap.cell_dofs(c)[0] for c in range(n_cells)])
+    dofs = _compat.cell_dofmap(W)[:len(gdofs), 0]
     fn.x.array[dofs] = diam
     return fn
 
@@ -96,21 +94,19 @@ class MarguerreForms(CubicForms):
         msh = V.mesh
         A_ = E * h / (1.0 - nu**2)
         D_ = E * h**3 / (12.0 * (1.0 - nu**2))
-        A = fem.Constant(msh, A_)
-        D = fem.Constant(msh, D_)
-        nu_c = fem.Constant(msh, nu)
-        pen = fem.Constant(msh, alpha * D_)
-        rho_h = fem.Constant(msh, rho * h)
-        c_in = fem.Constant(msh, float(inplane_mass))
+        A = _compat.constant(msh, A_)
+        D = _compat.constant(msh, D_)
+        nu_c = _compat.constant(msh, nu)
+        pen = _compat.constant(msh, alpha * D_)
+        rho_h = _compat.constant(msh, rho * h)
+        c_in = _compat.constant(msh, float(inplane_mass))
         dx = ufl.dx(domain=msh, metadata={"quadrature_degree": int(quadrature_degree)})
         dS = ufl.dS(domain=msh, metadata={"quadrature_degree": 4})
         ds = ufl.ds(domain=msh, metadata={"quadrature_degree": 4})
         # z0 interpolated in the scalar space of the displacements (not the exact SpatialCoordinate
         # expression): on curved cells a quadratic of x is not in P_k(reference), and only with the
         # interpolant are the rotations about e_x, e_y (v = -z0, w = y, ...) exact zero-energy fields
-        deg = V.ufl_element().degree()
-        with _compat.quiet_jit():
-            z0 = fem.Function(fem.FunctionSpace(msh, ("Lagrange", deg)))
+        z0 = fem.Function(_compat.scalar_space(msh, "Lagrange", _compat.element_degree(V)))
         c_ = 0.0 if math.isinf(R) else 1.0 / R
         z0.interpolate(lambda x: -0.5 * c_ * (x[0] ** 2 + x[1] ** 2))
         self.z0 = z0
@@ -160,20 +156,13 @@ class MarguerreForms(CubicForms):
 
     def w_sampler(self, X):
         """``fn(field) -> (cells, len(X))``: w of a field at reference points ``X`` (k, 2) of every cell."""
-        import inspect
-
         import numpy as np
-        from dolfinx import fem
 
-        jit = {"cache_dir": str(_compat.cache_dir()), "cffi_extra_compile_args": ["-O2"]}
-        key = "jit_params" if "jit_params" in inspect.signature(fem.Expression.__init__).parameters \
-            else "jit_options"
-        with _compat.quiet_jit():
-            expr = fem.Expression(self.sample[2], np.ascontiguousarray(X, dtype=float), **{key: jit})
+        expr = _compat.expression(self.sample[2], X)
         msh = self.V.mesh
-        cells = np.arange(msh.topology.index_map(msh.topology.dim).size_local, dtype=np.int32)
+        cells = np.arange(_compat.num_cells(msh), dtype=np.int32)
 
         def fn(field, which=None):
             _compat.set_values(self.sample, field)
-            return np.asarray(expr.eval(cells if which is None else np.asarray(which, dtype=np.int32)))
+            return _compat.evaluate(expr, msh, cells if which is None else np.asarray(which, dtype=np.int32))
         return fn
