@@ -41,7 +41,8 @@ ROOT = Path(__file__).resolve().parent.parent
 #: a C compiler for the forms, and mpirun.
 PACKAGES = ["python3-dolfinx-real", "python3-venv", "python3-setuptools", "python3-wheel", "python3-numpy",
             "python3-scipy", "python3-h5py", "python3-matplotlib", "python3-meshio", "python3-pytest",
-            "python3-dask", "python3-distributed", "gcc", "libc6-dev", "python3-dev", "mpi-default-bin"]
+            "python3-dask", "python3-distributed", "gcc", "libc6-dev", "python3-dev", "mpi-default-bin",
+            "libopenblas0"]
 FENICSX_TESTS = ["tests/test_fenicsx.py", "tests/test_fenicsx_boundary.py", "tests/test_fenicsx_materials.py",
                  "tests/test_fenicsx_cache.py", "tests/test_shallow_shell.py", "tests/test_mpi.py"]
 SCENES = ["plate", "shell_kappa25", "shallow_shell_kappa25"]
