@@ -69,6 +69,7 @@ class ShiftedSolves:
         self.twin_index = list(range(self.twins.shape[1])) if twin_index is None else list(twin_index)
         self.coupling = float(coupling)
         self._cache: dict[float, Solve] = {}
+        self._factors: list[Any] = []  # factorisations made here, released by release()
         self.shifts_factorised: list[float] = []
 
     # ------------------------------------------------------------------ API
@@ -85,8 +86,14 @@ class ShiftedSolves:
         return solver(b)
 
     def release(self) -> None:
-        """Free every kept factorisation."""
+        """Free every kept factorisation (``release()`` of those that have one: a MUMPS factorisation keeps
+        its memory until it is destroyed, dropping the object is not enough)."""
         self._cache.clear()
+        for fac in self._factors:
+            free = getattr(fac, "release", None)
+            if callable(free):
+                free()
+        self._factors.clear()
 
     # ------------------------------------------------------------ internals
     def _make(self, m: int, sigma: float) -> Solve:
@@ -109,6 +116,7 @@ class ShiftedSolves:
             fac = factorize((self.K - sigma * self.M).tocsr(), counters=self.counters, backend=self.backend,
                             label=label)
         self.shifts_factorised.append(sigma)
+        self._factors.append(fac)
         return fac.solve
 
     def _count(self, f: Solve) -> Solve:
@@ -150,6 +158,7 @@ class ShiftedSolves:
                     f"another mode has the same frequency (a degenerate twin, 1:1 internal resonance); "
                     f"pass its mode shape as a twin if symmetry keeps it uncoupled ({exc})") from exc
             self.shifts_factorised.append(w2)
+            self._factors.append(fac)
             n, k = len(b), D.shape[1]
             solver = lambda rhs: fac.solve(np.concatenate([rhs, np.zeros(k)]))[:n]  # noqa: E731
             self._cache[-1.0] = solver

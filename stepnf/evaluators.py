@@ -209,7 +209,9 @@ class FullOrderContext:
         """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free."""
         if self._last is not None and self._last[0] == sigma:
             return self._last[1]
-        self._last = None  # free the previous factors before making new ones
+        if self._last is not None:  # free the previous factors before making new ones
+            self._last[1].release()
+        self._last = None
         if self.shifted is not None:
             fac = self.shifted(sigma, label)
         else:

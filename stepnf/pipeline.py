@@ -3,7 +3,7 @@
 Only what the scene asks for is computed: NF/DNF/MD/SMD of one master mode
 need the targeted STEP (two force evaluations, four with the amplitude check),
 whatever the model size; the full STEP over the retained modes runs only when
-``analysis.tensors = "full"``.
+``analysis.tensors = "full"``; the DPIM backbone only with ``[analysis.backbone]``.
 
 The run of a solver adapter is the sequence :data:`ADAPTER_STAGES` (modules of
 :mod:`stepnf.stages`), each stage reading and writing fields of one
@@ -25,6 +25,7 @@ from .progress import Progress
 from .registry import build_model, get_solver
 from .results import RunResult, write_hdf5
 from .scene import Scene
+from .stages.backbone import backbone_check_stage, backbone_stage
 from .stages.evaluate import evaluators_stage
 from .stages.modal_coordinates import run_modal_model
 from .stages.model import model_stage
@@ -40,9 +41,11 @@ __all__ = ["ADAPTER_STAGES", "FULL_METHODS", "MODAL_METHODS", "run_scene"]
 #: ``results`` stage then gathers the result. A new stage is one more entry here.
 ADAPTER_STAGES: tuple[tuple[str, Callable[[RunState], None]], ...] = (
     ("model", model_stage),
+    ("backbone_check", backbone_check_stage),
     ("modes", modes_stage),
     ("step", step_stage),
     ("evaluators", evaluators_stage),
+    ("backbone", backbone_stage),
     ("output_mesh", output_mesh_stage),
 )
 
@@ -123,6 +126,9 @@ def _compute(scene: Scene, progress: Progress, writing: bool) -> tuple[RunResult
     cls = get_solver(scene.solver)
     checkpoint = None
     if issubclass(cls, ModalModel):
+        if scene.backbone is not None:
+            raise SceneError(scene.file, "analysis.backbone", f"the DPIM backbone runs on the full-order model "
+                             f"of a solver adapter; {scene.solver!r} is a model in modal coordinates")
         with progress.stage("model", f"building the {scene.solver} model"):
             model = build_model(scene)
         try:

@@ -37,9 +37,11 @@ class ModeResult:
     methods: dict[str, MethodResult] = field(default_factory=dict)
     step: dict[str, Any] = field(default_factory=dict)
     flags: list[dict] = field(default_factory=list)
+    #: ``[analysis.backbone]``: the JSON block of :func:`stepnf.backbone_report.backbone_report` (None: not asked)
+    backbone: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out = {
             "index": self.index,
             "label": label_json(self.label),
             "omega": json_float(self.omega),
@@ -51,6 +53,9 @@ class ModeResult:
             "flags": self.flags,
             "methods": {k: v.to_dict() for k, v in self.methods.items()},
         }
+        if self.backbone is not None:
+            out["backbone"] = self.backbone
+        return out
 
 
 def label_json(label: Any) -> Any:
@@ -88,6 +93,9 @@ class RunResult:
     counters_note: str | None = None
     #: the adapter's mesh for the field files (:mod:`stepnf.fields`), until they are written; not stored
     output_mesh: Any = field(default=None, repr=False)
+    #: ``[analysis.backbone]``: master index -> its :class:`stepnf.dpim.DPIMResult` (to rebuild x(theta) at an
+    #: amplitude); not stored: the JSON block, the HDF5 arrays ``backbone_<p>_*`` hold what is kept
+    backbones: dict[int, Any] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -161,6 +169,8 @@ def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Pat
                 if r.T_error is not None:
                     mg.attrs["T_error"] = r.T_error
                 mg.attrs["flags"] = json.dumps(r.flags)
+            if m.backbone is not None:
+                g.attrs["backbone"] = json.dumps(m.backbone, allow_nan=False)
         arr = f.create_group("arrays")
         for k, v in result.arrays.items():
             arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)

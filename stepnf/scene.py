@@ -29,7 +29,8 @@ the table ``[analysis.step]``: ``amplitude`` ("auto" | a length in model
 units), ``relative_amplitude`` (fraction of the characteristic length),
 ``check`` (bool), ``check_ratio``, ``tolerance``, ``method`` ("forces" |
 "tangent": G and h from the solver's tangent stiffness, for solvers that
-offer it and print few digits). ``[output]``: ``dir``,
+offer it and print few digits); the table ``[analysis.backbone]`` (the DPIM
+backbone of every master mode, :mod:`stepnf.backbone_keys`). ``[output]``: ``dir``,
 ``name`` (file stem, default the scene's), ``hdf5`` (bool), ``plot`` (bool),
 ``fields`` (bool, default true: beside the results file ``NAME.h5``, the mesh
 with each master mode's shape and second-order fields for ParaView,
@@ -52,6 +53,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from .backbone_keys import BackboneSpec, parse_backbone
 from .config import (check_bool, check_choice, check_name, check_number, check_table, check_text, check_unknown,
                      describe_value, read_toml)
 from .errors import SceneError, UnknownSolverError, allowed
@@ -63,7 +65,7 @@ METHODS = ("nf", "dnf", "md", "smd", "md_modal", "smd_modal", "md_full", "smd_fu
 TOP_KEYS = ("model", "analysis", "output")
 ANALYSIS_KEYS = ("master_modes", "methods", "retained_modes", "qm_order", "tensors", "rigid_modes",
                  "rigid_tolerance", "degeneracy_tolerance", "resonance_tolerance", "coupling_tolerance",
-                 "linear_solver", "deflation", "max_modes", "thickness", "transverse", "step")
+                 "linear_solver", "deflation", "max_modes", "thickness", "transverse", "step", "backbone")
 STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance", "method")
 OUTPUT_KEYS = ("dir", "name", "hdf5", "plot", "fields")
 _LABEL = re.compile(r"^\s*\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*$")
@@ -96,6 +98,7 @@ class Scene:
     thickness: float | None = None  # h of Gamma (model length units); None: the model's own, if any
     transverse: str | tuple[float, float, float] | None = None  # "ux"/"uy"/"uz" or a unit vector
     step: StepPolicy = field(default_factory=StepPolicy)
+    backbone: BackboneSpec | None = None  # [analysis.backbone]: the DPIM backbone (None: not computed)
     output_dir: Path = Path("results")
     output_name: str = "stepnf"
     write_hdf5: bool = True
@@ -168,6 +171,7 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
                base_dir=base_dir or Path("."), text=text)
     _analysis(f, an, sc)
     sc.step = _step(f, an.get("step", {}))
+    sc.backbone = parse_backbone(f, an["backbone"]) if "backbone" in an else None
     _output(f, data.get("output", {}), sc)
     if check_model:
         check_model_keys(sc)

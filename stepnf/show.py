@@ -25,7 +25,7 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
         rec = ModeResult(index=int(m["index"]), label=_label(m.get("label")), omega=float(m["omega"]),
                          rho=_float(m.get("rho")), rho_mode=m.get("rho_mode"), omega_bar=_float(m.get("omega_bar")),
                          w_max=_float(m.get("w_max")), step=dict(m.get("step") or {}),
-                         flags=list(m.get("flags") or []))
+                         flags=list(m.get("flags") or []), backbone=m.get("backbone"))
         for name, r in (m.get("methods") or {}).items():
             rec.methods[name] = MethodResult(method=name, T=float(r["T"]), C=tuple(float(c) for c in r.get("C", ())),
                                              flags=list(r.get("flags") or []), order=r.get("order", "modal"),

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 
+from .backbone_table import backbone_lines
 from .results import RunResult, label_text
 from .trust import unusable_reason
 
@@ -70,6 +71,7 @@ def format_table(res: RunResult) -> str:
                 if f.get("kind", "").startswith("internal_resonance") or f.get("kind") in (
                         "step_accuracy", "modal_truncation"):
                     lines.append(f"flag [{m.index} {r.method}]: {f['message']}")
+    lines += backbone_lines(res)
     if res.hdf5_path:
         lines.append(f"results: {res.hdf5_path}")
     for p in res.extra_files:

@@ -153,6 +153,18 @@ OUTPUT_CASES = {
 }
 
 
+#: [analysis.backbone] (stepnf.backbone_keys): odd order in [3, 25], ascending positive lists, a relative
+#: tolerance in (0, 1], a grid of 2..10000 points; a misspelt key names itself.
+BACKBONE_CASES = {
+    "order": ["4", "1", "27", "-3", "7.0", HUGE_INT, STRING, BOOL, NAN, ARRAY],
+    "amplitudes": ["[]", "[2.0, 1.0]", "[1.0, 1.0]", "[0.0]", "[-1e-3]", "[1e300]", MIXED, STRING, NAN, TABLE],
+    "w_over_h": ["[]", "[1.0, 0.5]", "[0]", "[1e9]", STRING, INF],
+    "tolerance": ["0", "2", NEG, STRING, NAN, INF],
+    "points": ["1", "0", "1e9", "2.5", STRING, BOOL],
+    "ordr": ["7"],
+}
+
+
 def _cases(table: dict[str, list[str]]) -> list[tuple[str, str]]:
     return [(k, v) for k, values in table.items() for v in values]
 
@@ -167,6 +179,24 @@ def test_analysis_keys(folder, capsys, key, value):
 @pytest.mark.parametrize("key, value", _cases(STEP_CASES))
 def test_step_keys(folder, capsys, key, value):
     run_bad_scene(folder, capsys, scene_text(step=f"{key} = {value}\n"), [f"analysis.step.{key}"])
+
+
+@pytest.mark.parametrize("key, value", _cases(BACKBONE_CASES))
+def test_backbone_keys(folder, capsys, key, value):
+    text = scene_text(analysis=f"{GOOD_ANALYSIS}[analysis.backbone]\n{key} = {value}\n")
+    run_bad_scene(folder, capsys, text, [f"analysis.backbone.{key}"])
+
+
+def test_backbone_both_lists_refused(folder, capsys):
+    text = scene_text(analysis=f"{GOOD_ANALYSIS}[analysis.backbone]\namplitudes = [1e-3]\nw_over_h = [0.5]\n")
+    run_bad_scene(folder, capsys, text, ["analysis.backbone.w_over_h", "not both"])
+
+
+def test_backbone_w_over_h_needs_a_thickness(folder, capsys):
+    """Decided by the model (the polynomial system has no transverse direction): refused at run time,
+    still exit 2 naming the key, the earlier result untouched."""
+    text = scene_text(analysis=f"{GOOD_ANALYSIS}thickness = 0.01\n[analysis.backbone]\nw_over_h = [0.5]\n")
+    run_bad_scene(folder, capsys, text, ["analysis.backbone.w_over_h", "thickness"])
 
 
 @pytest.mark.parametrize("key, value", _cases(OUTPUT_CASES))

@@ -154,6 +154,28 @@ def test_misspelt_scene_key_has_the_same_wording(folder, place, key, intended):
     expect_unknown(info.value, key, intended, folder / "s.toml")
 
 
+@pytest.mark.parametrize("key, intended", [("ordre", "order"), ("amplitude", "amplitudes"), ("w_over_H", "w_over_h"),
+                                            ("tolerence", "tolerance"), ("point", "points")])
+def test_misspelt_backbone_key_has_the_same_wording(folder, key, intended):
+    """``[analysis.backbone]`` (stepnf.backbone_keys) is checked with the same vocabulary at load time."""
+    table = f"[analysis.backbone]\n{key} = 7\n[output]"
+    text = "[model]\n" + MODELS["polynomial"][0] + ANALYSIS.replace("[output]", table)
+    (folder / "s.toml").write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_scene(folder / "s.toml")
+    assert info.value.key == f"analysis.backbone.{key}"
+    expect_unknown(info.value, f"analysis.backbone.{key}", intended, folder / "s.toml")
+
+
+def test_backbone_table_loads_with_defaults(folder):
+    text = "[model]\n" + MODELS["polynomial"][0] + ANALYSIS.replace("[output]", "[analysis.backbone]\n[output]")
+    (folder / "s.toml").write_text(text)
+    spec = load_scene(folder / "s.toml").backbone
+    assert (spec.order, spec.amplitudes, spec.w_over_h, spec.tolerance, spec.points) == (7, None, None, 1e-3, 40)
+    (folder / "s.toml").write_text(text.replace("[analysis.backbone]\n", ""))
+    assert load_scene(folder / "s.toml").backbone is None
+
+
 def test_unknown_solver_fails_at_load(folder):
     (folder / "s.toml").write_text('[model]\nsolver = "abaqus"\n' + ANALYSIS)
     with pytest.raises(SceneError) as info:

@@ -68,4 +68,4 @@ def results_stage(state: RunState) -> RunResult:
     return RunResult(scene=scene_summary(state.scene, state.methods), modes=state.modes, counts=counts,
                      timings={}, spectrum=spectrum, model=model,
                      kappa=scales.kappa if scales else None, flags=state.flags, arrays=state.arrays,
-                     output_mesh=state.output_mesh)
+                     output_mesh=state.output_mesh, backbones=state.backbones)

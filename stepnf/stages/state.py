@@ -35,7 +35,9 @@ class RunState:
     ``master_modes``). By ``step``: ``steps`` (master -> :class:`MasterStep`), ``full``. By
     ``evaluators``: ``modes``, ``scales``, ``gscale``, ``no_gamma``, ``arrays`` (``Gv_<p>``) and,
     on first use, ``context``. By ``output_mesh``: ``output_mesh`` (when ``want_fields``: the run
-    writes field files, so the full-order evaluators keep their displacement vectors).
+    writes field files, so the full-order evaluators keep their displacement vectors). By
+    ``backbone`` (with ``[analysis.backbone]``): ``backbones`` (master -> :class:`stepnf.dpim.DPIMResult`),
+    each :class:`ModeResult`'s ``backbone`` and ``arrays`` (``backbone_<p>_*``).
     """
 
     scene: Scene
@@ -67,6 +69,7 @@ class RunState:
     no_gamma: str | None = None
     want_fields: bool = False
     output_mesh: Any = None
+    backbones: dict[int, Any] = field(default_factory=dict)
 
     @classmethod
     def start(cls, scene: Scene, adapter: SolverAdapter, progress: Progress,

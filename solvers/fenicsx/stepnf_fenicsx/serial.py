@@ -221,7 +221,18 @@ class FenicsxAdapter(FormsAdapter):
         return math.inf if self.geometry is None else float(self.geometry["R"])
 
     def _midsurface_nodes(self) -> np.ndarray:
-        """Indices of the dof nodes on the mid-surface (all nodes when it is unknown)."""
+        """Indices of the dof nodes on the mid-surface (all nodes when it is unknown); found once."""
+        if getattr(self, "_mid_cache", None) is None:
+            self._mid_cache = self._find_midsurface_nodes()
+        return self._mid_cache
+
+    def _midsurface_normals(self) -> np.ndarray:
+        """Outward normals at :meth:`_midsurface_nodes` (the transverse direction there); found once."""
+        if getattr(self, "_mid_normals_cache", None) is None:
+            self._mid_normals_cache = outward_normals(self._nodes[self._midsurface_nodes()], self._R())
+        return self._mid_normals_cache
+
+    def _find_midsurface_nodes(self) -> np.ndarray:
         X = self._nodes
         if self.mesh.midsurface is not None:
             from scipy.spatial import cKDTree
@@ -240,7 +251,7 @@ class FenicsxAdapter(FormsAdapter):
     def transverse_amplitude(self, phi: np.ndarray) -> float:
         mid = self._midsurface_nodes()
         U = self._node_displacements(phi)[mid]
-        w = np.einsum("ij,ij->i", U, outward_normals(self._nodes[mid], self._R()))
+        w = np.einsum("ij,ij->i", U, self._midsurface_normals())
         return float(np.max(np.abs(w)))
 
     def mode_labels(self, Phi: np.ndarray) -> list[Any]:

@@ -1,0 +1,218 @@
+"""Stage ``backbone``: the DPIM of every master mode to the order of ``[analysis.backbone]``, and its backbone.
+
+Per master mode ``p`` (:func:`stepnf.dpim.dpim`, full order):
+
+* forces through a :class:`stepnf.step.ForceEvaluator` on the run's counters and checkpoint (batches of
+  1024 fields for adapters that prefer batches, else 64; one plan name per order, so an interrupted run
+  reuses them), one batched request per order;
+* the probe of the polarisation is STEP's amplitude (``[analysis.step] amplitude``, else
+  relative_amplitude x the thickness or the model's characteristic length): the size at which STEP
+  already found the forces accurate;
+* the linear solves of the run's :func:`~stepnf.stages.context.full_order_context`: its ``K^+`` (the
+  factorisation DNF and SMD used), its deflated solver for every shift below the computed spectrum
+  (the resonant shift ``w_p^2`` included, the master and its twins left out, as MD does), its shifted
+  factorisations (adapter's or stepnf's) otherwise: kept for all orders of the master on small models,
+  one at a time on large ones (:data:`KEEP_FACTORISATIONS_UP_TO`), freed when the master is done;
+* the computed spectrum for the internal-resonance flags (naming the mode), with one flag when the
+  computed modes stop below ``N w_p`` (resonances with the higher harmonics are not checked there);
+* the master's degenerate twins passed: handled when symmetry keeps them uncoupled, else a
+  :class:`~stepnf.errors.NumericalError` naming the modes (exit 3).
+
+Every rank of a collective (MPI) adapter makes the same calls: the sequence depends only on the
+scene and the computed modes.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..backbone_report import WMax, backbone_report, transverse_operator
+from ..dpim import DPIMResult, dpim, planned_evaluations
+from ..errors import SceneError
+from ..linalg import Factorization, factorize
+from ..gamma import gamma_scale
+from ..step import ForceEvaluator, step_amplitude
+from .context import full_order_context
+from .state import RunState
+
+
+#: Models up to this many dofs keep every shifted factorisation of a master for all its orders (a few MB
+#: each); larger ones keep one at a time (:class:`OneFactorisation`): on the 38k-dof cap each costs ~220 MB
+#: and a high mode needs N - 1 = 6 of them.
+KEEP_FACTORISATIONS_UP_TO = 5000
+
+
+def free(fac) -> None:
+    """Free a factorisation's memory now (:meth:`stepnf.linalg.Factorization.release`; MUMPS through
+    petsc4py otherwise keeps its factors until they are destroyed)."""
+    release = getattr(fac, "release", None)
+    if callable(release):
+        release()
+
+
+class OneFactorisation:
+    """A ``factory(sigma, label)`` for :class:`stepnf.dpim_solvers.ShiftedSolves` whose solvers share one
+    slot: one live factorisation of ``K - sigma M`` at a time (the adapter's when it factorises, else
+    :func:`stepnf.linalg.factorize`), freed when another shift is asked for. Harmonic m is solved at orders
+    m, m + 2, ..., N, so this makes about twice as many factorisations for the memory of one."""
+
+    def __init__(self, state: RunState, ctx):
+        self.state, self.ctx = state, ctx
+        self.slot: tuple[float, Factorization] | None = None
+
+    def __call__(self, sigma: float, label: str) -> "ShiftSolve":
+        return ShiftSolve(self, sigma, label)
+
+    def get(self, sigma: float, label: str) -> Factorization:
+        if self.slot is not None and self.slot[0] == sigma:
+            return self.slot[1]
+        self.release()
+        st = self.state
+        fac = (self.ctx.shifted(sigma, label) if self.ctx.shifted is not None else
+               factorize((sp.csr_matrix(st.K) - sigma * sp.csr_matrix(st.M)).tocsr(), counters=st.counters,
+                         backend=st.backend, label=label))
+        self.slot = (sigma, fac)
+        return fac
+
+    def release(self) -> None:
+        if self.slot is not None:
+            free(self.slot[1])
+        self.slot = None
+
+
+class ShiftSolve:
+    """The solve of one shift through a :class:`OneFactorisation` slot (made again when needed)."""
+
+    def __init__(self, owner: OneFactorisation, sigma: float, label: str):
+        self.owner, self.sigma, self.label = owner, sigma, label
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        return self.owner.get(self.sigma, self.label).solve(b)
+
+    def release(self) -> None:
+        self.owner.release()
+
+
+class PlannedForces:
+    """``forces(U)`` for :mod:`stepnf.polarisation`: each call a named checkpoint plan (``backbone_<p>_<k>``)."""
+
+    def __init__(self, evaluator: ForceEvaluator, p: int):
+        self.evaluator, self.p, self.calls = evaluator, p, 0
+
+    def __call__(self, U: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        return self.evaluator(U, plan=f"backbone_{self.p}_{self.calls}")
+
+
+def w_max_measure(state: RunState) -> WMax | None:
+    """How W_max / h is measured: ``[analysis] transverse`` as a linear map on the dofs, else the model's
+    own transverse amplitude; ``None`` without a thickness or a transverse direction (``state.gscale``)."""
+    g = state.gscale
+    if g is None:
+        return None
+    if state.scene.transverse is not None and state.dirs is not None:
+        op = transverse_operator(state.X, state.dirs, state.scene.transverse)
+        return WMax(g.thickness, linear=op) if op is not None else None
+    probe = g.amplitude(state.phi[:, state.masters[0]])
+    return WMax(g.thickness, peak=g.amplitude) if probe is not None and probe > 0 else None
+
+
+def spectrum_flag(state: RunState, p: int, order: int) -> dict | None:
+    """A flag when the computed modes stop below ``order x w_p`` (resonances above them unchecked); none when
+    the eigen-solve computed every mode of the model."""
+    top = float(state.omega[-1]) / float(state.omega[p])
+    if state.basis.complete or top >= order * (1 + state.tol.resonance):
+        return None
+    return {"kind": "resonance_check_partial", "mode": None,
+            "message": f"the computed modes reach {top:.3g} x w_p (mode {state.m - 1}): internal resonances with "
+                       f"the harmonics {max(2, math.floor(top) + 1)}..{order} of the parametrisation are not checked"}
+
+
+def master_dpim(state: RunState, p: int, order: int, forces: ForceEvaluator, probe: float) -> DPIMResult:
+    """The DPIM of master ``p`` with the run's solvers (module docstring)."""
+    ctx = full_order_context(state)
+    twins = state.basis.twins(p)
+    nr = state.basis.rigid.shape[1]
+    w2 = float(state.omega[p]) ** 2
+    resonant = None
+    if ctx.deflated is not None and ctx.deflated.admissible(w2):
+        d, excl = ctx.deflated, [nr + p] + [nr + t for t in twins]
+        resonant = lambda b: d.solve(b, w2, exclude=excl)  # noqa: E731
+    # every factorisation of the master kept for its orders (made by the adapter, or by ShiftedSolves), or one
+    # at a time on a large model; ShiftedSolves frees them (release()) when the master is done
+    one = state.n > KEEP_FACTORISATIONS_UP_TO
+    factory = OneFactorisation(state, ctx) if one else ctx.shifted
+    res = dpim(PlannedForces(forces, p), state.K, state.M, state.phi[:, p], float(state.omega[p]), order,
+               probe=probe, R=state.basis.rigid, spectrum=state.omega, master=p,
+               twins=state.phi[:, twins] if twins else None, twin_index=twins or None,
+               factory=factory, pinv=ctx.Kpinv, resonant=resonant, deflated=ctx.deflated,
+               backend=state.backend, counters=state.counters, resonance_tolerance=state.tol.resonance,
+               twin_tolerance=state.scene.degeneracy_tolerance, coupling=state.tol.coupling,
+               progress=lambda k: state.progress.bar(k - 1, order - 1, f"DPIM mode {p}"))
+    flag = spectrum_flag(state, p, order)
+    if flag is not None:
+        res.flags.append(flag)
+    return res
+
+
+def backbone_check_stage(state: RunState) -> None:
+    """Refuse ``[analysis.backbone] w_over_h`` on a model without a thickness and a transverse displacement,
+    right after the ``model`` stage (before any eigen-solve, force evaluation or checkpoint): a
+    :class:`SceneError` naming the key (exit 2). Reads ``scene``, ``adapter``, ``X``, ``dirs``, ``n``."""
+    spec = state.scene.backbone
+    if spec is None or spec.w_over_h is None:
+        return
+    g, why = gamma_scale(state.scene, state.adapter, state.X, state.dirs)
+    if g is not None and state.scene.transverse is None and g.amplitude(np.zeros(state.n)) is None:
+        g, why = None, "the model gives no transverse displacement; set [analysis] transverse"
+    if g is None:
+        raise SceneError(state.scene.file, "analysis.backbone.w_over_h",
+                         f"W_max/h needs a thickness and the transverse displacement of the model: {why}; "
+                         "or give amplitudes instead")
+
+
+def backbone_stage(state: RunState) -> None:
+    """The DPIM backbone of every master mode, when the scene has ``[analysis.backbone]``.
+
+    Reads ``scene``, ``adapter``, ``K``, ``M``, ``basis``, ``masters``, ``policy``, ``dirs``, ``X``,
+    ``gscale``, ``no_gamma``, ``modes``, ``counters``, ``checkpoint`` and the full-order ``context``
+    (built here if no evaluator did). Writes ``backbones`` (master -> :class:`~stepnf.dpim.DPIMResult`),
+    each mode's ``backbone`` block (:func:`stepnf.backbone_report.backbone_report`) and ``arrays``
+    (``backbone_<p>_index``, ``_Y``, ``_c``, ``_omega_p``: the coefficients; ``_amplitude``, ``_omega``,
+    ``_w_max_over_h``: the reported curve). ``w_over_h`` without a thickness and a transverse
+    direction is refused by :func:`backbone_check_stage` before any solve.
+    """
+    spec, scene = state.scene.backbone, state.scene
+    if spec is None:
+        return
+    wmax = w_max_measure(state)
+    if spec.w_over_h is not None and wmax is None:  # (backbone_check_stage refuses the usual cases earlier)
+        raise SceneError(scene.file, "analysis.backbone.w_over_h",
+                         "W_max/h needs a thickness and the transverse displacement of the model: "
+                         + (state.no_gamma or "the master mode has no transverse displacement")
+                         + "; or give amplitudes instead")
+    length = scene.thickness if scene.thickness is not None else state.adapter.characteristic_length()
+    probe = step_amplitude(np.ones(1), state.policy, length)  # STEP's target length (peak 1)
+    forces = ForceEvaluator(state.adapter.internal_forces, state.n, state.counters,
+                            batch_size=1024 if state.adapter.prefers_batches else 64, checkpoint=state.checkpoint)
+    per_mode = sum(planned_evaluations(spec.order))
+    records = {rec.index: rec for rec in state.modes}
+    with state.progress.stage("backbone", f"DPIM backbone to order {spec.order}: up to {per_mode} force "
+                                          f"evaluations per master mode"):
+        for p in state.masters:
+            res = master_dpim(state, p, spec.order, forces, probe)
+            state.backbones[p] = res
+            fallback = step_amplitude(state.phi[:, p], state.policy, length)
+            block = backbone_report(res, spec, wmax, probe=probe, fallback=fallback)
+            if p in records:
+                records[p].backbone = block
+            arrays = res.arrays()
+            for key in ("index", "Y", "c"):
+                state.arrays[f"backbone_{p}_{key}"] = arrays[key]
+            state.arrays[f"backbone_{p}_omega_p"] = arrays["omega"]
+            for key in ("amplitude", "omega", "w_max_over_h"):
+                if block[key] is not None:
+                    state.arrays[f"backbone_{p}_{key}"] = np.asarray(
+                        [np.nan if v is None else float(v) for v in block[key]])
