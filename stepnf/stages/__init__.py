@@ -5,6 +5,8 @@ For a solver adapter (:func:`stepnf.pipeline.run_scene` runs them in this order)
 ``model`` (:mod:`.model`)
     mass and stiffness matrices, the STEP policy the adapter allows, dof geometry, the checks that
     refuse a model before any solve.
+``backbone_check`` (:mod:`.backbone`)
+    with ``[analysis.backbone]``: what it asks of the model (a thickness for ``w_over_h``), before any solve.
 ``modes`` (:mod:`.modes`)
     the eigen-solve, mode labels, the master modes, the run's model flags.
 ``step`` (:mod:`.step`)
@@ -12,6 +14,10 @@ For a solver adapter (:func:`stepnf.pipeline.run_scene` runs them in this order)
 ``evaluators`` (:mod:`.evaluate`, :mod:`.methods`, :mod:`.master`, :mod:`.context`)
     NF/DNF, MD, SMD and the diagnostics of every master mode, with the full-order linear algebra
     built once, on first use.
+``backbone`` (:mod:`.backbone`)
+    with ``[analysis.backbone]``: the DPIM of every master mode to order N and its backbone curve.
+``output_mesh`` (:mod:`.output_mesh`)
+    the adapter's mesh for the field files, when the run writes them (:mod:`stepnf.fields`).
 ``results`` (:mod:`.results`)
     the spectrum, counts, arrays and run flags gathered into a :class:`stepnf.results.RunResult`.
 
