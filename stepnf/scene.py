@@ -151,6 +151,8 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
     f = file
     if not isinstance(data, Mapping):
         raise SceneError(f, None, f"expected a TOML document (a table), got {describe_value(data)}")
+    if "sweep" in data:
+        raise SceneError(f, "sweep", "this is a sweep file, not a scene: run it with `stepnf sweep FILE`")
     check_unknown(f, "", data, TOP_KEYS)
     model = data.get("model")
     if not isinstance(model, Mapping):

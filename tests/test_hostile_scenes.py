@@ -531,3 +531,15 @@ def test_external_run_keys(folder, capsys, solver, model, key):
 def test_external_cap_resolution(folder, capsys, solver):
     text = fx_text(geometry="n_core = 300\nn_ring = 300").replace('solver = "fenicsx"', f'solver = "{solver}"')
     run_bad_scene(folder, capsys, text, ["model.geometry.n_core", "dofs"])
+
+
+def test_a_sweep_file_given_as_a_scene_says_so(capsys):
+    """``stepnf run`` (or modes, check) on a sweep file points to ``stepnf sweep``, exit 2."""
+    from pathlib import Path
+
+    from stepnf.cli import main
+
+    sweep = Path(__file__).resolve().parents[1] / "examples" / "table2.toml"
+    assert main(["run", str(sweep), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "[sweep]: this is a sweep file, not a scene: run it with `stepnf sweep FILE`" in err
