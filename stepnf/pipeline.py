@@ -126,9 +126,6 @@ def _compute(scene: Scene, progress: Progress, writing: bool) -> tuple[RunResult
     cls = get_solver(scene.solver)
     checkpoint = None
     if issubclass(cls, ModalModel):
-        if scene.backbone is not None:
-            raise SceneError(scene.file, "analysis.backbone", f"the DPIM backbone runs on the full-order model "
-                             f"of a solver adapter; {scene.solver!r} is a model in modal coordinates")
         with progress.stage("model", f"building the {scene.solver} model"):
             model = build_model(scene)
         try:

@@ -238,14 +238,17 @@ def test_fenicsx_cap_order5(tmp_path):
     assert sum(c["force_evaluations"] for c in b["counts"].values()) == sum(planned_evaluations(5))
 
 
-def test_modal_model_refused(tmp_path, capsys):
-    """The DPIM runs on a full-order adapter; a model in modal coordinates is refused before it is built."""
+def test_modal_model_runs_its_own_modal_dpim(tmp_path, capsys):
+    """A model in modal coordinates (the von Karman shell) gets the DPIM over its own modes
+    (stepnf/stages/modal_coordinates.py; its numbers are checked in tests/test_backbone_modal.py)."""
     (tmp_path / "vk.toml").write_text('[model]\nsolver = "vonkarman"\nkappa = 25.0\nk_max = 4\n[analysis]\n'
-                                      'master_modes = [0]\nmethods = ["nf"]\n[analysis.backbone]\n'
-                                      '[output]\ndir = "out"\n')
-    assert main(["run", str(tmp_path / "vk.toml"), "-q"]) == 2
-    err = capsys.readouterr().err
-    assert "[analysis.backbone]" in err and "modal coordinates" in err and "Traceback" not in err
+                                      'master_modes = ["(2,0)"]\nmethods = ["nf"]\n[analysis.backbone]\norder = 5\n'
+                                      '[output]\ndir = "out"\nplot = true\n')
+    assert main(["run", str(tmp_path / "vk.toml"), "-q", "--json"]) == 0
+    cap = capsys.readouterr()
+    bb = json.loads(cap.out)["modes"][0]["backbone"]
+    assert bb["order"] == 5 and len(bb["omega"]) == len(bb["amplitude"]) > 0
+    assert "Traceback" not in cap.err
 
 
 def test_one_factorisation_at_a_time_gives_the_same_backbone(system, monkeypatch):

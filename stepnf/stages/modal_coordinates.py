@@ -1,15 +1,28 @@
-"""The run of a model given in modal coordinates (:class:`ModalModel`): modes, evaluators, results.
+"""The run of a model given in modal coordinates (:class:`ModalModel`): modes, evaluators, backbone, results.
 
 Such a model has no mesh, no STEP and no linear algebra: its modal coefficients are exact, and
 "full order" means every mode of the model.
+
+``[analysis.backbone]``: the DPIM (:func:`stepnf.dpim.dpim`) of each master in modal coordinates,
+``M = I``, ``K = diag(omega^2)``, ``f(X) = K X + g(X, X) + h(X, X, X)`` from the model's own modal
+forces (:mod:`stepnf.stages.modal_forces`: for the von Karman shell, over the modes the master drives
+by symmetry), so the backbone is that of the model's own truncation, an independent route to the
+full-order one of a solver adapter. Same JSON block (:func:`stepnf.backbone_report.backbone_report`)
+and HDF5 arrays (``backbone_<p>_*``, fields over the modes listed in ``backbone_<p>_modes``) as the
+adapter path. ``A`` is the amplitude of the master's modal coordinate ``X_p`` (the model's own
+normalisation); ``W_max / h`` from the model's transverse field where it gives one.
 """
 from __future__ import annotations
 
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from ..backbone import MethodResult
+from ..backbone_report import WMax, backbone_report
+from ..dpim import DPIMResult, dpim
+from ..errors import SceneError
 from ..counters import Counters
 from ..diagnostics import slow_fast_ratio
 from ..evaluators import retained_set
@@ -19,6 +32,7 @@ from ..progress import Progress
 from ..results import ModeResult, RunResult
 from ..scene import Scene
 from .methods import modal_method
+from .modal_forces import ModalSystem, modal_system
 from .results import scene_summary
 from .state import FULL_METHODS
 
@@ -37,10 +51,76 @@ def run_modal_model(scene: Scene, model: ModalModel, progress: Progress) -> RunR
     maxima = model.mode_maxima()
     with progress.stage("evaluators", "normal form and modal derivatives"):
         modes = [modal_mode(scene, model, p, omega, labels, methods, scales, maxima) for p in masters]
+    arrays: dict[str, np.ndarray] = {}
+    backbones: dict[int, DPIMResult] = {}
+    if scene.backbone is not None:
+        with progress.stage("backbone", f"DPIM backbone to order {scene.backbone.order} in modal coordinates"):
+            for rec in modes:
+                backbones[rec.index] = modal_backbone(scene, model, rec, labels, arrays)
     return RunResult(scene=scene_summary(scene, methods), modes=modes, counts=Counters().to_dict(),
                      timings={}, spectrum={"omega": omega.tolist(), "labels": labels, "n_rigid": 0,
                                            "degenerate_groups": []},
-                     model=model.describe(), kappa=scales.kappa if scales else None)
+                     model=model.describe(), kappa=scales.kappa if scales else None, arrays=arrays,
+                     backbones=backbones)
+
+
+def modal_dpim(system: ModalSystem, order: int, labels: list, *, probe: float = 1.0,
+               resonance_tolerance: float = 0.05, twin_tolerance: float = 1e-6) -> DPIMResult:
+    """The DPIM of ``system``'s master to odd ``order`` (M = I, K = diag(omega^2); module docstring).
+
+    ``probe``: polarisation size in modal coordinates (exact for the cubic modal force: only round-off
+    depends on it). Internal-resonance flags name the model's modes (global index and label).
+    """
+    m = len(system.omega)
+    K = sp.diags(system.omega ** 2).tocsr()
+    phi = np.zeros(m)
+    phi[system.local] = 1.0
+    res = dpim(system.forces, K, sp.identity(m, format="csr"), phi, float(system.omega[system.local]), order,
+               probe=probe, spectrum=system.omega, master=system.local, resonance_tolerance=resonance_tolerance,
+               twin_tolerance=twin_tolerance)
+    for f in res.flags:
+        if f.get("mode") is not None:
+            s = int(system.index[int(f["mode"])])
+            f["message"] = f["message"].replace(f"mode {f['mode']} ", f"mode {s} {labels[s]} ", 1).replace(
+                f"master mode {system.local}", f"master mode {int(system.index[system.local])}")
+            f["mode"] = s
+    return res
+
+
+def modal_backbone(scene: Scene, model: ModalModel, rec: ModeResult, labels: list,
+                   arrays: dict[str, np.ndarray]) -> DPIMResult:
+    """Master ``rec.index``'s DPIM and its ``backbone`` block (set on ``rec``); the HDF5 arrays into ``arrays``.
+
+    A model without modal forces (:func:`stepnf.stages.modal_forces.modal_system`) is a SceneError on
+    ``analysis.backbone`` (exit 2); ``w_over_h`` without its transverse field too.
+    """
+    spec, p = scene.backbone, rec.index
+    system = modal_system(model, p)
+    if system is None:
+        raise SceneError(scene.file, "analysis.backbone", f"the {scene.solver!r} model gives only g^s_pp and "
+                         "h^p_ppp, not its whole modal force: no DPIM backbone")
+    wmax = WMax(1.0, linear=system.transverse) if system.transverse is not None else None
+    if spec.w_over_h is not None and wmax is None:
+        raise SceneError(scene.file, "analysis.backbone.w_over_h", f"the {scene.solver!r} model gives no "
+                         "transverse displacement field; give amplitudes instead")
+    res = modal_dpim(system, spec.order, labels, resonance_tolerance=scene.tolerances.resonance,
+                     twin_tolerance=scene.degeneracy_tolerance)
+    block = backbone_report(res, spec, wmax, probe=1.0, fallback=1.0)
+    block["modes"] = [int(s) for s in system.index]
+    if int(system.index[system.local]) != p:
+        block["flags"].append({"kind": "backbone_twin", "mode": int(system.index[system.local]),
+                               "message": f"the backbone of master {p} is that of its cos twin "
+                                          f"{int(system.index[system.local])} (the same by rotation)"})
+    rec.backbone = block
+    for key, val in res.arrays().items():
+        if key in ("index", "Y", "c"):
+            arrays[f"backbone_{p}_{key}"] = val
+    arrays[f"backbone_{p}_omega_p"] = np.asarray(res.omega)
+    arrays[f"backbone_{p}_modes"] = np.asarray(system.index, dtype=int)
+    for key in ("amplitude", "omega", "w_max_over_h"):
+        if block[key] is not None:
+            arrays[f"backbone_{p}_{key}"] = np.asarray([np.nan if v is None else float(v) for v in block[key]])
+    return res
 
 
 def modal_mode(scene: Scene, model: ModalModel, p: int, omega: np.ndarray, labels: list, methods: dict[str, str],
