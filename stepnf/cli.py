@@ -1,5 +1,6 @@
 """Command-line interface: ``stepnf run SCENE``, ``stepnf modes SCENE``, ``stepnf show RESULT.h5``, ``stepnf solvers``,
-``stepnf check SCENE`` (the conformance harness on a scene's adapter: exit 3 when a check fails).
+``stepnf check SCENE`` (the conformance harness on a scene's adapter: exit 3 when a check fails),
+``stepnf verify SCENE`` (backbones against the full model's periodic orbits).
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
 solver or numerical failure, or a file that cannot be written; 4 a sweep with
@@ -101,11 +102,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise
     if rank:  # under mpirun every rank computes the same results; rank 0 alone writes and prints
         return 0
-    if scene.plot and not args.no_plot:
-        try:
+    for suffix in ("modes", "backbone") if scene.plot and not args.no_plot else ():
+        try:  # the mode shapes (stepnf.plots), the DPIM backbones (stepnf.backbone_plot)
+            from .backbone_plot import plot_backbones
             from .plots import plot_mode_shapes
 
-            path = plot_mode_shapes(result, scene.output_dir / f"{scene.output_name}_modes.png")
+            draw = plot_mode_shapes if suffix == "modes" else plot_backbones
+            path = draw(result, scene.output_dir / f"{scene.output_name}_{suffix}.png")
             if path is not None:
                 result.extra_files.append(str(path))
         except ImportError as exc:  # matplotlib missing: results are still there
@@ -114,7 +117,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             from .atomic import reason
 
             cause = exc.__cause__ if isinstance(exc, OutputError) and exc.__cause__ is not None else exc
-            print(f"stepnf: warning: no figure {scene.output_dir / (scene.output_name + '_modes.png')}: "
+            print(f"stepnf: warning: no figure {scene.output_dir / (scene.output_name + f'_{suffix}.png')}: "
                   f"{reason(cause)}", file=sys.stderr)
     show(result)
     return 0
@@ -147,6 +150,19 @@ def _cmd_check(args: argparse.Namespace) -> int:
     report = check_scene(args.scene)
     print(format_check(report))
     return 3 if report.failed else 0
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    """``stepnf verify SCENE``: the scene's backbones against the full model's orbits (:mod:`stepnf.verify`)."""
+    import json
+
+    from .scene import load_scene
+    from .verify import format_report, verify_scene
+
+    say = None if args.quiet else (lambda s: print(f"stepnf: {s}", file=sys.stderr, flush=True))
+    doc = verify_scene(load_scene(args.scene), amplitudes=args.amplitudes, periods=args.periods, progress=say)
+    print(json.dumps(doc, indent=2) if args.json else format_report(doc))
+    return 0
 
 
 def _positive(text: str) -> int:
@@ -310,6 +326,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_ck = sub.add_parser("check", parents=[common], help="run the adapter conformance checks on a scene's model")
     p_ck.add_argument("scene", help="scene file (TOML)")
     p_ck.set_defaults(func=_cmd_check)
+    p_vf = sub.add_parser("verify", parents=[common], help="check the scene's backbone curves against periodic "
+                          "orbits of the full model (shooting, or time integration for large models)")
+    p_vf.add_argument("scene", help="scene file (TOML) with an [analysis.backbone] table")
+    p_vf.add_argument("--amplitudes", nargs="+", type=float, metavar="A",
+                      help="amplitudes of the master coordinate q = phi^T M x (default: 3 up to the validity limit)")
+    p_vf.add_argument("--periods", type=float, default=3.0, help="periods integrated (large models; default 3)")
+    p_vf.add_argument("--json", action="store_true", help="print one JSON document on stdout instead of the table")
+    p_vf.add_argument("--quiet", "-q", action="store_true", help="no progress messages on stderr")
+    p_vf.set_defaults(func=_cmd_verify)
     p_sol = sub.add_parser("solvers", parents=[common], help="list the installed solver adapters")
     p_sol.add_argument("--keys", metavar="NAME", help="list the keys the [model] table of solver NAME accepts "
                        "(type, range, default, meaning)")
