@@ -1,0 +1,297 @@
+"""``stepnf verify SCENE``: the DPIM backbones against periodic orbits of the full model.
+
+For each master mode and a few amplitudes ``A`` of the master coordinate ``q = phi^T M x``
+(default: three, evenly up to the backbone's validity limit), the full model's orbit is computed
+independently of the parametrisation:
+
+* **shooting** (:class:`stepnf.periodic.Shooting`: Newton on the period and the initial state,
+  DOP853 with ``rtol = 1e-12``) for models up to :data:`SHOOTING_LIMIT` dofs (the variational
+  equations are n x n), started from the parametrisation's point at ``theta = 0``;
+* **time integration** (:mod:`stepnf.integrate`: the energy-conserving scheme over ``periods``
+  periods at two step sizes, Richardson-extrapolated) from the parametrisation's point
+  ``(x, v)(theta = 0, rho(A))`` for larger models.
+
+Both report the orbit's frequency and amplitude, the backbone's frequency at that amplitude, and
+how far the orbit is from the manifold: at sampled states, ``(rho, theta)`` is the point of the
+parametrisation with the same master coordinate and rate (``phi^T M x = q``,
+``phi^T M v = q'``: two scalar equations, Newton), and the distance is the energy norm
+``sqrt(dx^T K dx + dv^T M dv)`` over ``sqrt(x^T K x + v^T M v)`` (relative), the largest over the orbit.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .errors import NumericalError, SceneError
+
+#: Largest model (dofs) checked by shooting; larger ones by time integration.
+SHOOTING_LIMIT = 300
+
+
+class Chart:
+    """The point of a DPIM parametrisation with a given master coordinate and rate (module docstring).
+
+    ``res``: a :class:`stepnf.dpim.DPIMResult`; ``K``, ``M`` (n, n) for the energy norm.
+    """
+
+    def __init__(self, res: Any, K, M):
+        self.res, self.K, self.M = res, K, M
+        self.Mphi = np.asarray(M @ res.phi).ravel()
+        self.keys = sorted(res.Y)
+        self.a = np.array([float(self.Mphi @ res.Y[k]) for k in self.keys])
+        self.p = np.array([k[0] for k in self.keys], dtype=float)
+        self.m = np.array([k[1] for k in self.keys], dtype=float)
+
+    def frequency(self, rho: float) -> float:
+        """``Omega(rho)`` (rad per model time unit)."""
+        return self.res.omega + sum(ck * rho ** (2 * k) for k, ck in enumerate(self.res.c, start=1))
+
+    def _q(self, theta: float, rho: float) -> tuple[float, float, np.ndarray]:
+        rp = rho ** self.p
+        c, s = np.cos(self.m * theta), np.sin(self.m * theta)
+        om = self.frequency(rho)
+        dom = sum(2 * k * ck * rho ** (2 * k - 1) for k, ck in enumerate(self.res.c, start=1))
+        q = float(self.a @ (rp * c))
+        sv = float(self.a @ (rp * self.m * s))
+        qd = -om * sv
+        drp = self.p * rho ** np.maximum(self.p - 1, 0)
+        J = np.array([[-float(self.a @ (rp * self.m * s)), float(self.a @ (drp * c))],
+                      [-om * float(self.a @ (rp * self.m ** 2 * c)),
+                       -dom * sv - om * float(self.a @ (drp * self.m * s))]])
+        return q, qd, J
+
+    def locate(self, q: float, qd: float, rho: float | None = None) -> tuple[float, float]:
+        """``(theta, rho)`` with ``phi^T M x(theta, rho) = q`` and ``phi^T M v(theta, rho) = qd``.
+
+        Newton from the linear guess, or from ``rho`` when given (far out the map need not be
+        one-to-one: an orbit's own ``rho`` keeps Newton on its branch).
+        """
+        w = self.res.omega
+        theta = float(np.arctan2(-qd / w, q))
+        rho = float(np.hypot(q, qd / w)) if rho is None else float(rho)
+        scale = max(rho, 1e-300)
+        for _ in range(50):
+            r0, r1, J = self._q(theta, rho)
+            res = np.array([r0 - q, (r1 - qd) / w])
+            J[1] /= w
+            try:
+                d = np.linalg.solve(J, -res)
+            except np.linalg.LinAlgError:
+                break
+            theta, rho = theta + d[0], rho + d[1]
+            if abs(d[0]) <= 1e-14 and abs(d[1]) <= 1e-14 * scale:
+                return theta, rho
+        raise NumericalError(f"verify: no point of the parametrisation has q = {q:.6g}, q' = {qd:.6g} "
+                             "(the orbit left the parametrisation's range)")
+
+    def distance(self, x: np.ndarray, v: np.ndarray, rho: float | None = None) -> float:
+        """Relative energy-norm distance of ``(x, v)`` from the parametrisation at the same ``(q, q')``
+        (``rho``: a guess, see :meth:`locate`)."""
+        theta, rho = self.locate(float(self.Mphi @ x), float(self.Mphi @ v), rho)
+        dx = x - self.res.displacement(theta, rho)
+        dv = v - self.res.velocity(theta, rho)
+        num = float(dx @ (self.K @ dx)) + float(dv @ (self.M @ dv))
+        den = float(x @ (self.K @ x)) + float(v @ (self.M @ v))
+        return float(np.sqrt(max(num, 0.0) / den)) if den > 0 else 0.0
+
+
+@dataclass
+class Check:
+    """One backbone point against the full model's orbit (frequencies in rad per model time unit)."""
+
+    amplitude: float           # A asked for (of q = phi^T M x)
+    omega_dpim: float          # backbone at the orbit's amplitude
+    omega_check: float         # the full model's orbit
+    orbit_amplitude: float     # A measured on the orbit
+    distance: float            # largest relative distance from the manifold along the orbit
+    method: str                # "shooting" or "integration"
+    error_estimate: float | None = None  # bound on omega_check's error, relative (integration only)
+    seconds: float = 0.0
+    work: dict | None = None
+
+    @property
+    def difference(self) -> float:
+        """``omega_dpim / omega_check - 1``."""
+        return self.omega_dpim / self.omega_check - 1.0
+
+
+def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float, *,
+                tangent: Callable | None = None, samples: int = 32) -> Check:
+    """The brake orbit of amplitude ``A`` by shooting, from the parametrisation's guess."""
+    from .periodic import Shooting
+
+    t0 = time.perf_counter()
+    bb = res.backbone()
+    rho = bb.rho_at(A)
+    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent)
+    orb = sh.at_amplitude(A, guess=(res.displacement(0.0, rho), 2 * np.pi / bb.frequency(rho)))
+    sol = sh.integrate(orb.x0, orb.period, dense=True)
+    chart = Chart(res, K, M)
+    n = len(res.phi)
+    rho = bb.rho_at(orb.amplitude)
+    dist = max(chart.distance(y[:n], y[n:], rho) for y in sol.sol(np.linspace(0, orb.period, samples + 1)).T)
+    return Check(A, float(bb.omega_at(orb.amplitude)[0]), orb.omega, orb.amplitude, dist, "shooting",
+                 None, time.perf_counter() - t0, {"newton_iterations": orb.newton_iterations})
+
+
+def by_integration(res: Any, K, M, forces: Callable[[np.ndarray], np.ndarray], A: float, *,
+                   periods: float = 3.0, rtol: float = 1e-7, tangent: Callable | None = None,
+                   integrator: Any = None, samples_per_period: int = 16, what: str = "") -> Check:
+    """Integrate from ``(x, v)(0, rho(A))`` over ``periods`` periods (:func:`stepnf.integrate.measure`)."""
+    from .integrate import EnergyConserving, measure
+
+    t0 = time.perf_counter()
+    bb = res.backbone()
+    rho = bb.rho_at(A)
+    chart = Chart(res, K, M)
+    # Newton to 1e-10 of the state: over <= 1e3 steps the accumulated error stays <= 1e-7, below rtol, and
+    # above the round-off floor of a large FE model's solves (modified Newton stalls near 1e-11 there)
+    integ = integrator or EnergyConserving(M, K, forces, tangent=tangent, tol=1e-10)
+    x0, v0 = res.displacement(0.0, rho), res.velocity(0.0, rho)
+    level = float(chart.Mphi @ res.displacement(np.pi / 2, rho))  # q at theta = pi/2: crossed mid-swing
+    m = measure(integ, x0, v0, watch=chart.Mphi, omega=bb.frequency(rho), periods=periods, rtol=rtol,
+                level=level, keep_per_period=samples_per_period, what=what or "time integration")
+    dist = max(chart.distance(x, v, rho) for _, x, v in m.finest.states)
+    work = {"levels": [{k: d[k] for k in ("dt", "steps", "newton_iterations", "force_evaluations",
+                                          "tangent_steps")} for d in m.levels]}
+    return Check(A, float(bb.omega_at(m.amplitude)[0]), m.omega, m.amplitude, dist, "integration",
+                 m.omega_error, time.perf_counter() - t0, work)
+
+
+# --------------------------------------------------------------------------- scene
+def backbone_spec(scene: Any) -> Any:
+    """The scene's ``[analysis.backbone]`` (a :class:`stepnf.backbone_keys.BackboneSpec`), or None."""
+    return getattr(scene, "backbone", None)
+
+
+def default_amplitudes(bb: Any, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0), tol: float = 1e-3,
+                       shift: float = 0.10) -> tuple[list[float], str]:
+    """Amplitudes at ``fractions`` of the backbone's validity limit (orders N-2 and N within ``tol``).
+
+    Without a limit (not reached), of the amplitude where ``omega`` has moved by ``shift``.
+    Returns ``(amplitudes, where the top one comes from)``.
+    """
+    A_max, why = bb.validity_limit(tol)
+    if A_max is None or A_max <= 0:
+        w = bb.res.omega
+        c1 = abs(bb.res.c[0]) if len(bb.res.c) else 0.0
+        rho = 1e-3 * (w / c1) ** 0.5 if c1 > 0 else 1e-3  # Omega - w = c1 rho^2 starts at 1e-6 w
+        for _ in range(400):
+            if abs(bb.frequency(rho) / w - 1) >= shift:
+                break
+            rho *= 1.05
+        A_max, why = bb.amplitude(rho), f"omega shifted by {shift:.0%}"
+    else:
+        why = f"validity limit A = {A_max:.6g} ({why}, tol {tol:g})"
+    return [A_max * f for f in fractions], why
+
+
+def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, periods: float = 3.0,
+                 rtol: float = 1e-6, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0),
+                 progress: Callable[[str], None] | None = None) -> dict:
+    """Run the scene's backbone (:func:`stepnf.pipeline.run_scene`), then check every master mode.
+
+    Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``,
+    ``method``, ``modes`` (one entry per master: ``index``, ``label``, ``omega``, ``order``,
+    ``amplitudes_from``, ``checks``, one dict per amplitude). Without ``amplitudes``, each mode is
+    checked at ``fractions`` of its validity limit (:func:`default_amplitudes`); ``rtol`` the
+    integration's frequency accuracy (:func:`stepnf.integrate.measure`). A scene without
+    ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit a
+    :class:`NumericalError` naming the mode and the amplitude.
+    """
+    from .adapter import SolverAdapter, checked_matrices
+    from .pipeline import run_scene
+    from .registry import build_model, get_solver
+
+    say = progress or (lambda s: None)
+    where = getattr(scene, "file", None)
+    spec = backbone_spec(scene)
+    if spec is None:
+        raise SceneError(where, "analysis.backbone", "stepnf verify checks the backbone curves: the scene has no "
+                         "[analysis.backbone] table (add one, e.g. order = 7)")
+    if amplitudes is not None and not all(np.isfinite(a) and a > 0 for a in amplitudes):
+        raise SceneError(where, None, f"--amplitudes must be positive numbers, got {list(amplitudes)}")
+    if not (np.isfinite(periods) and periods >= 1):
+        raise SceneError(where, None, f"--periods must be a number >= 1, got {periods}")
+    if not issubclass(get_solver(scene.solver), SolverAdapter):
+        raise SceneError(where, "model.solver", f"stepnf verify integrates the full model: solver "
+                         f"{scene.solver!r} is a model in modal coordinates, not a solver adapter")
+    say("running the scene's backbone")
+    result = run_scene(scene, write=False)
+    backbones = getattr(result, "backbones", None)
+    if backbones is None:
+        raise SceneError(where, "analysis.backbone", "this stepnf's run has no backbone stage (RunResult.backbones "
+                         "is missing): nothing to verify")
+    adapter = build_model(scene)
+    try:
+        K, M = checked_matrices(adapter)
+        n = K.shape[0]
+        tangent = adapter.tangent_stiffness if adapter.provides_tangent_stiffness else None
+        shooting = n <= (SHOOTING_LIMIT if tangent is not None else 40)
+        labels = {m.index: m.label for m in getattr(result, "modes", [])}
+        doc = {"scene": str(where), "n_dofs": int(n), "method": "shooting" if shooting else "integration",
+               "periods": None if shooting else periods, "modes": []}
+        for p, res in sorted(backbones.items()):
+            bb = res.backbone()
+            who = f"master mode {p}" + (f" {labels[p]}" if labels.get(p) is not None else "")
+            tol = getattr(spec, "tolerance", 1e-3)
+            amps, src = (list(amplitudes), "--amplitudes") if amplitudes else default_amplitudes(bb, fractions, tol)
+            if amplitudes:
+                limit, why = bb.validity_limit(tol)
+                if limit is not None and max(amps) > limit * (1 + 1e-9):
+                    raise SceneError(where, None, f"--amplitudes {max(amps):.6g} is beyond the validity limit of "
+                                     f"{who}, A = {limit:.6g} ({why}: orders {res.order - 2} and {res.order} "
+                                     f"differ by more than {tol:g}); no trustworthy starting orbit there")
+            entry = {"index": int(p), "label": _label(labels.get(p)), "omega": float(res.omega),
+                     "order": int(res.order), "amplitudes_from": src, "checks": []}
+            for A in amps:
+                say(f"{who}: the full model's orbit at A = {A:.6g}")
+                try:
+                    if shooting:
+                        chk = by_shooting(res, K, M, adapter.internal_force, A,
+                                          tangent=(lambda u: tangent(u).toarray()) if tangent else None)
+                    else:
+                        chk = by_integration(res, K, M, adapter.internal_forces, A, periods=periods, rtol=rtol,
+                                             tangent=tangent)
+                except NumericalError as exc:
+                    raise NumericalError(f"verify: {who} at A = {A:.6g}: {exc}") from exc
+                entry["checks"].append(check_dict(chk, res.omega))
+            doc["modes"].append(entry)
+        return doc
+    finally:
+        adapter.close()
+
+
+def _label(label: Any) -> Any:
+    return list(label) if isinstance(label, tuple) else label
+
+
+def check_dict(c: Check, omega: float) -> dict:
+    """The JSON form of one check (frequencies as ratios to the linear ``omega`` and in rad/s)."""
+    return {"amplitude": c.amplitude, "orbit_amplitude": c.orbit_amplitude,
+            "omega_dpim": c.omega_dpim, "omega_check": c.omega_check,
+            "omega_dpim_over_omega": c.omega_dpim / omega, "omega_check_over_omega": c.omega_check / omega,
+            "relative_difference": c.difference, "manifold_distance": c.distance, "method": c.method,
+            "error_estimate": c.error_estimate, "seconds": round(c.seconds, 3), "work": c.work}
+
+
+def format_report(doc: dict) -> str:
+    """The side-by-side table ``stepnf verify`` prints."""
+    how = ("shooting (DOP853, rtol 1e-12)" if doc["method"] == "shooting" else
+           f"time integration over {doc['periods']:g} periods (energy-conserving, Richardson over 2 steps)")
+    lines = [f"{doc['scene']}: {doc['n_dofs']} dofs; full-model orbits by {how}"]
+    for m in doc["modes"]:
+        lab = "" if m["label"] is None else f" {tuple(m['label']) if isinstance(m['label'], list) else m['label']}"
+        lines.append(f"\nmaster mode {m['index']}{lab}: w = {m['omega']:.9g} rad/s, DPIM order {m['order']}, "
+                     f"amplitudes from {m['amplitudes_from']}")
+        lines.append(f"  {'A':>12s} {'w_DPIM/w':>14s} {'w_check/w':>14s} {'rel. diff':>11s} {'distance':>10s}")
+        for c in m["checks"]:
+            lines.append(f"  {c['orbit_amplitude']:12.6g} {c['omega_dpim_over_omega']:14.10f} "
+                         f"{c['omega_check_over_omega']:14.10f} {c['relative_difference']:11.2e} "
+                         f"{c['manifold_distance']:10.2e}")
+    lines.append("\nA: amplitude of q = phi^T M x measured on the orbit; w_DPIM at that A; distance: largest "
+                 "relative energy-norm distance of the orbit from the parametrisation")
+    return "\n".join(lines)
