@@ -9,46 +9,26 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
-from stepnf.adapter import SolverAdapter
 from stepnf.cli import main
 from stepnf.schema import Key, Schema
 from stepnf.testing import CHECKS, Tolerances, check_from_config, run_checks
 from systems import use_solver
+from test_harness import DuffingChain
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 ANALYSIS = '[analysis]\nmaster_modes = [0]\nmethods = ["dnf"]\n'
 
 
-class Chain(SolverAdapter):
-    """n unit masses, grounded by springs 2 u + c u^3 and coupled by unit springs: conservative."""
+class Chain(DuffingChain):
+    """n unit masses, grounded by springs 2 u + c u^3 and coupled by unit springs: conservative (the
+    harness tests' chain, with the key ``c`` and a characteristic length)."""
 
     model_keys = Schema(Key("n", "integer", "number of masses", default=6, lo=2, hi=1000),
                         Key("c", "number", "cubic ground stiffness", default=1.0, lo=0))
 
     def __init__(self, n: int = 6, c: float = 1.0):
-        self.n, self.c = n, c
-        self.K = sp.diags([np.full(n, 3.0), -np.ones(n - 1), -np.ones(n - 1)], [0, 1, -1], format="csr")
-
-    @property
-    def n_dofs(self):
-        return self.n
-
-    def mass_matrix(self):
-        return sp.identity(self.n, format="csr")
-
-    def stiffness_matrix(self):
-        return self.K
-
-    def _internal_force(self, u):
-        return self.K @ u + self.c * u**3
-
-    def dof_coordinates(self):
-        return np.column_stack([np.arange(self.n, dtype=float), np.zeros(self.n), np.zeros(self.n)])
-
-    def dof_directions(self):
-        return np.ones(self.n, dtype=int)
+        super().__init__(n, c0=c)
 
     def characteristic_length(self):
         return 1.0
