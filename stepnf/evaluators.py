@@ -209,9 +209,7 @@ class FullOrderContext:
         """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free."""
         if self._last is not None and self._last[0] == sigma:
             return self._last[1]
-        if self._last is not None:  # free the previous factors before making new ones
-            self._last[1].release()
-        self._last = None
+        self.release_shifted()  # free the previous factors before making new ones
         if self.shifted is not None:
             fac = self.shifted(sigma, label)
         else:
@@ -219,6 +217,12 @@ class FullOrderContext:
             fac = factorize(A, counters=self.counters, backend=self.backend, label=label)
         self._last = (sigma, fac)
         return fac
+
+    def release_shifted(self) -> None:
+        """Free the kept factorisation of :meth:`shifted_factorization` now (none is kept afterwards)."""
+        if self._last is not None:
+            self._last[1].release()
+        self._last = None
 
 
 def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,

@@ -26,12 +26,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..backbone_report import WMax, backbone_report, transverse_operator
 from ..dpim import DPIMResult, dpim, planned_evaluations
 from ..errors import SceneError
-from ..linalg import Factorization, factorize
 from ..gamma import gamma_scale
 from ..step import ForceEvaluator, step_amplitude
 from .context import full_order_context
@@ -44,55 +42,31 @@ from .state import RunState
 KEEP_FACTORISATIONS_UP_TO = 5000
 
 
-def free(fac) -> None:
-    """Free a factorisation's memory now (:meth:`stepnf.linalg.Factorization.release`; MUMPS through
-    petsc4py otherwise keeps its factors until they are destroyed)."""
-    release = getattr(fac, "release", None)
-    if callable(release):
-        release()
-
-
 class OneFactorisation:
-    """A ``factory(sigma, label)`` for :class:`stepnf.dpim_solvers.ShiftedSolves` whose solvers share one
-    slot: one live factorisation of ``K - sigma M`` at a time (the adapter's when it factorises, else
-    :func:`stepnf.linalg.factorize`), freed when another shift is asked for. Harmonic m is solved at orders
-    m, m + 2, ..., N, so this makes about twice as many factorisations for the memory of one."""
+    """A ``factory(sigma, label)`` for :class:`stepnf.dpim_solvers.ShiftedSolves` whose solvers share the
+    context's one slot (:meth:`~stepnf.evaluators.FullOrderContext.shifted_factorization`: one live
+    factorisation of ``K - sigma M`` at a time, the adapter's when it factorises, freed when another shift
+    is asked for). Harmonic m is solved at orders m, m + 2, ..., N, so this makes about twice as many
+    factorisations for the memory of one."""
 
-    def __init__(self, state: RunState, ctx):
-        self.state, self.ctx = state, ctx
-        self.slot: tuple[float, Factorization] | None = None
+    def __init__(self, ctx):
+        self.ctx = ctx
 
     def __call__(self, sigma: float, label: str) -> "ShiftSolve":
-        return ShiftSolve(self, sigma, label)
-
-    def get(self, sigma: float, label: str) -> Factorization:
-        if self.slot is not None and self.slot[0] == sigma:
-            return self.slot[1]
-        self.release()
-        st = self.state
-        fac = (self.ctx.shifted(sigma, label) if self.ctx.shifted is not None else
-               factorize((sp.csr_matrix(st.K) - sigma * sp.csr_matrix(st.M)).tocsr(), counters=st.counters,
-                         backend=st.backend, label=label))
-        self.slot = (sigma, fac)
-        return fac
-
-    def release(self) -> None:
-        if self.slot is not None:
-            free(self.slot[1])
-        self.slot = None
+        return ShiftSolve(self.ctx, sigma, label)
 
 
 class ShiftSolve:
-    """The solve of one shift through a :class:`OneFactorisation` slot (made again when needed)."""
+    """The solve of one shift through the context's slot (the factorisation made again when needed)."""
 
-    def __init__(self, owner: OneFactorisation, sigma: float, label: str):
-        self.owner, self.sigma, self.label = owner, sigma, label
+    def __init__(self, ctx, sigma: float, label: str):
+        self.ctx, self.sigma, self.label = ctx, sigma, label
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return self.owner.get(self.sigma, self.label).solve(b)
+        return self.ctx.shifted_factorization(self.sigma, self.label).solve(b)
 
     def release(self) -> None:
-        self.owner.release()
+        self.ctx.release_shifted()
 
 
 class PlannedForces:
@@ -143,7 +117,7 @@ def master_dpim(state: RunState, p: int, order: int, forces: ForceEvaluator, pro
     # every factorisation of the master kept for its orders (made by the adapter, or by ShiftedSolves), or one
     # at a time on a large model; ShiftedSolves frees them (release()) when the master is done
     one = state.n > KEEP_FACTORISATIONS_UP_TO
-    factory = OneFactorisation(state, ctx) if one else ctx.shifted
+    factory = OneFactorisation(ctx) if one else ctx.shifted
     res = dpim(PlannedForces(forces, p), state.K, state.M, state.phi[:, p], float(state.omega[p]), order,
                probe=probe, R=state.basis.rigid, spectrum=state.omega, master=p,
                twins=state.phi[:, twins] if twins else None, twin_index=twins or None,
