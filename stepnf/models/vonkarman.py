@@ -56,7 +56,7 @@ import time
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -93,7 +93,7 @@ RANGES: dict[str, tuple[float, float]] = {"kappa": (0.0, 1e6), "nu": (-1.0, 0.5)
 
 
 @dataclass
-class _ShellFamily:
+class ShellFamily:
     """Shell modes of one nodal-diameter number k (radial parts, shared by both companions)."""
 
     k: int
@@ -106,6 +106,31 @@ class _ShellFamily:
     def radial(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         R, dR, d2R = self.plate.evaluate(r)
         return self.Q.T @ R, self.Q.T @ dR, self.Q.T @ d2R
+
+
+@dataclass(frozen=True)
+class GalerkinData:
+    """What :meth:`VonKarmanShell.galerkin` gives (nondimensional, the module docstring's notation).
+
+    ``families[k]``: the :class:`ShellFamily` of nodal-diameter number k (``omega``, radial parts ``f`` on
+    the rule, ``A[b, j] = A_b(phi_j)``); ``airy_radial[kb]``: the Airy functions' radial parts on the rule
+    (as ``_table`` gives them); ``xi4[kb]``: their ``xi_b^4``; ``r``, ``w``: the radial quadrature rule
+    (``int_0^1 g(r) dr ~ sum w g(r)``); ``rows[i] = (omega, k, n, companion, j)`` of global mode i (increasing
+    omega) and ``index[(k, j, companion)] = i``; ``omega``: the global angular frequencies; ``kappa``,
+    ``eps_c``, ``k_max``: the model's.
+    """
+
+    families: Mapping[int, ShellFamily]
+    airy_radial: Mapping[int, np.ndarray]
+    xi4: Mapping[int, np.ndarray]
+    r: np.ndarray
+    w: np.ndarray
+    rows: Sequence[tuple]
+    index: Mapping[tuple, int]
+    omega: np.ndarray
+    kappa: float
+    eps_c: float
+    k_max: int
 
 
 class VonKarmanShell(ModalModel):
@@ -188,7 +213,7 @@ class VonKarmanShell(ModalModel):
         self._airy_r = {k: _table("airy", k, self.n_airy, nu, edge, panels)[0] for k in self._airy}
         self._xi4 = {k: f.lam**4 for k, f in self._airy.items()}
         beta = self.eps_c * self.kappa  # eps_q sqrt(kappa)
-        self._fam: dict[int, _ShellFamily] = {}
+        self._fam: dict[int, ShellFamily] = {}
         for k, pf in plates.items():
             fr = _table("plate", k, self.n_galerkin, nu, edge, panels)
             A = angular_weight(k) * (self._airy_r[k] * (r * w)) @ laplacian(fr, k, r).T  # (n_airy, n_gal)
@@ -198,7 +223,7 @@ class VonKarmanShell(ModalModel):
             R1 = pf.evaluate(np.array([1.0]))[sign_derivative(edge)][:, 0] @ V
             V = V * np.where(R1 < 0, -1.0, 1.0)
             f = (V.T @ fr[0], V.T @ fr[1], V.T @ fr[2])
-            self._fam[k] = _ShellFamily(k, np.sqrt(lam2[: self.n_transverse]), V, pf, f, A @ V)
+            self._fam[k] = ShellFamily(k, np.sqrt(lam2[: self.n_transverse]), V, pf, f, A @ V)
         # global mode list: (omega, k, n, companion)
         rows = []
         for k, fam in self._fam.items():
@@ -244,6 +269,12 @@ class VonKarmanShell(ModalModel):
                     self._g[np.ix_(P, S)] = g.T
 
     # ------------------------------------------------------------------ API
+    def galerkin(self) -> "GalerkinData":
+        """The Galerkin data of the model (read-only views), for computations beyond ``g`` and ``h``: the
+        whole modal force of :mod:`stepnf.stages.modal_forces` (see :class:`GalerkinData`)."""
+        return GalerkinData(self._fam, self._airy_r, self._xi4, self._r, self._w, self._rows, self._index,
+                            self._omega, self.kappa, self.eps_c, self.k_max)
+
     def omegas(self) -> np.ndarray:
         """Nondimensional angular frequencies ``omega_bar`` (m,), increasing."""
         return self._omega.copy()

@@ -28,9 +28,7 @@ harmonics ``j k_p`` is even and periodic), so it is a grid maximum: below the tr
 about ``dr^2 |R''| / (8 R) ~ 4e-5`` relative (``dr = 1/400``, ``|R''/R| <~ 50`` for these modes; the
 peak of the cos fields lies at an angle of the grid, 0 or ``pi / k_p``).
 
-This module reads the Galerkin data of :class:`~stepnf.models.vonkarman.VonKarmanShell` (its attributes
-``_fam``, ``_airy_r``, ``_xi4``, ``_r``, ``_w``, ``_rows``, ``_index``): a public accessor there would be
-the cleaner seam.
+The Galerkin data come from :meth:`stepnf.models.vonkarman.VonKarmanShell.galerkin`.
 """
 from __future__ import annotations
 
@@ -68,7 +66,7 @@ def modal_system(model: Any, p: int) -> ModalSystem | None:
     own = getattr(model, "internal_forces", None)
     if callable(own):
         return ModalSystem(np.arange(len(omega)), p, omega, own)
-    if not all(hasattr(model, a) for a in ("_fam", "_airy_r", "_xi4", "_rows", "_index")):
+    if not callable(getattr(model, "galerkin", None)):
         return None
     return VonKarmanForces(model, p).system()
 
@@ -78,28 +76,29 @@ class VonKarmanForces:
 
     def __init__(self, model: Any, p: int):
         self.model = model
-        _, kp, _, comp, j = model._rows[p]
+        self.data = gd = model.galerkin()
+        _, kp, _, comp, j = gd.rows[p]
         self.kp = int(kp)
         # the cos master (itself, or the cos twin of a sin master)
-        self.master = model._index[(kp, j, "cos")]
-        ks = [0] if kp == 0 else [k for k in range(0, model.k_max + 1, kp)]
-        self.ks = [k for k in ks if k in model._fam]
-        self.index = np.asarray([model._index[(k, i, "cos")] for k in self.ks
-                                 for i in range(len(model._fam[k].omega))])
+        self.master = gd.index[(kp, j, "cos")]
+        ks = [0] if kp == 0 else [k for k in range(0, gd.k_max + 1, kp)]
+        self.ks = [k for k in ks if k in gd.families]
+        self.index = np.asarray([gd.index[(k, i, "cos")] for k in self.ks
+                                 for i in range(len(gd.families[k].omega))])
         kb_top = 2 * max(self.ks)
-        self.kbs = [0] if kp == 0 else [k for k in range(0, kb_top + 1, kp) if k in model._airy_r]
+        self.kbs = [0] if kp == 0 else [k for k in range(0, kb_top + 1, kp) if k in gd.airy_radial]
         self._tensors()
 
     def _tensors(self) -> None:
         """Per Airy class kb (cos): ``B[kb]`` (nb, m, m) = ``B_b(phi_i, phi_j)`` (symmetrised), ``A[kb]`` (nb, m)
         = ``A_b(phi_s)`` (zero unless ``k_s = kb``) and ``xi4[kb]`` (nb,)."""
-        md = self.model
-        sizes = [len(md._fam[k].omega) for k in self.ks]
+        md = self.data
+        sizes = [len(md.families[k].omega) for k in self.ks]
         offs = np.concatenate([[0], np.cumsum(sizes)])
         m = int(offs[-1])
         self.B, self.A, self.xi4 = {}, {}, {}
         for kb in self.kbs:
-            nb = md._airy_r[kb].shape[0]
+            nb = md.airy_radial[kb].shape[0]
             B = np.zeros((nb, m, m))
             for a, ki in enumerate(self.ks):
                 for b, kj in enumerate(self.ks):
@@ -107,18 +106,18 @@ class VonKarmanForces:
                     if ang == (0.0, 0.0):
                         continue
                     B[:, offs[a]:offs[a + 1], offs[b]:offs[b + 1]] = trilinear(
-                        md._airy_r[kb], md._fam[ki].f, ki, md._fam[kj].f, kj, md._r, md._w, ang)
+                        md.airy_radial[kb], md.families[ki].f, ki, md.families[kj].f, kj, md.r, md.w, ang)
             A = np.zeros((nb, m))
             if kb in self.ks:
                 a = self.ks.index(kb)
-                A[:, offs[a]:offs[a + 1]] = md._fam[kb].A
-            self.B[kb], self.A[kb], self.xi4[kb] = 0.5 * (B + B.transpose(0, 2, 1)), A, md._xi4[kb]
+                A[:, offs[a]:offs[a + 1]] = md.families[kb].A
+            self.B[kb], self.A[kb], self.xi4[kb] = 0.5 * (B + B.transpose(0, 2, 1)), A, md.xi4[kb]
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """``f(X)`` (k, m) for modal fields ``X`` (k, m) over :attr:`index` (module docstring)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
-        md = self.model
-        omega2 = md._omega[self.index] ** 2
+        md = self.data
+        omega2 = md.omega[self.index] ** 2
         root, eps = math.sqrt(md.kappa), md.eps_c
         out = X * omega2
         for kb in self.kbs:
@@ -132,11 +131,11 @@ class VonKarmanForces:
 
     def transverse(self) -> Callable[[np.ndarray], np.ndarray]:
         """``Y`` (m, j) -> ``w / h`` (t, j) on the polar grid (module docstring)."""
-        md = self.model
+        md, gd = self.model, self.data
         r = np.linspace(0.0, 1.0, RADII)
         th = np.zeros(1) if self.kp == 0 else np.linspace(0.0, np.pi / self.kp, ANGLES)
         R = np.asarray([md.radial_shape(int(s), r) for s in self.index])       # (m, nr)
-        ks = np.asarray([md._rows[int(s)][1] for s in self.index])
+        ks = np.asarray([gd.rows[int(s)][1] for s in self.index])
         C = np.cos(np.outer(ks, th))                                            # (m, nt)
         Phi = (R[:, :, None] * C[:, None, :]).reshape(len(self.index), -1).T    # (t, m)
         last: dict[bytes, np.ndarray] = {}
@@ -153,4 +152,4 @@ class VonKarmanForces:
 
     def system(self) -> ModalSystem:
         local = int(np.flatnonzero(self.index == self.master)[0])
-        return ModalSystem(self.index, local, self.model._omega[self.index].copy(), self, self.transverse())
+        return ModalSystem(self.index, local, self.data.omega[self.index].copy(), self, self.transverse())
