@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import scipy.sparse as sp
 
 #: matrix -> attribute that keeps it
@@ -77,4 +78,15 @@ class LazyMatrices:
             timings = getattr(self, "timings", None)
             if isinstance(timings, dict):
                 timings[which] = time.perf_counter() - t0
+            self._share_pattern()
         return getattr(self, kept)
+
+    def _share_pattern(self) -> None:
+        """Once both are built: when M has K's sparsity pattern (one function space: the usual case), M
+        keeps K's index arrays instead of its own copy (4 bytes per stored entry: 145 MB at 250k dofs of
+        hex27). The values are untouched."""
+        K, M = self._K, self._M
+        if not (sp.isspmatrix_csr(K) and sp.isspmatrix_csr(M)) or np.shares_memory(M.indices, K.indices):
+            return
+        if K.shape == M.shape and np.array_equal(K.indptr, M.indptr) and np.array_equal(K.indices, M.indices):
+            self._M = sp.csr_matrix((M.data, K.indices, K.indptr), shape=M.shape)

@@ -38,15 +38,24 @@ class Solve(Protocol):
 
 
 class Factorization:
-    """A factorised square matrix; ``solve(b)`` accepts (n,) or (n, k) and counts k solves."""
+    """A factorised square matrix; ``solve(b)`` accepts (n,) or (n, k) and counts k solves.
+
+    ``resources``: what the solve needs alive (PETSc objects, arrays a PETSc matrix reads); those with
+    a ``destroy()`` are destroyed by :meth:`release`. ``on_release`` (optional) is called once by
+    :meth:`release`: it frees factors that this object shares (those of
+    :class:`stepnf.shifted.ShiftedFactorizer`), unless :meth:`supersede` came first.
+    """
 
     def __init__(self, solve: Callable[[np.ndarray], np.ndarray], n: int, backend: str,
-                 counters: Counters | None = None, label: str = ""):
+                 counters: Counters | None = None, label: str = "", *,
+                 resources: tuple = (), on_release: Callable[[], None] | None = None):
         self._solve = solve
         self.n = n
         self.backend = backend
         self.counters = counters
         self.label = label
+        self._petsc = resources
+        self._on_release = on_release
 
     def solve(self, b: np.ndarray, *, count: bool = True) -> np.ndarray:
         b = np.asarray(b, dtype=float)
@@ -65,14 +74,42 @@ class Factorization:
     def release(self) -> None:
         """Free the factors now: MUMPS's (through petsc4py) otherwise outlive this object (measured:
         about 220 MB kept per factorisation of the 38k-dof cap). Solving afterwards is an error."""
-        for obj in getattr(self, "_petsc", ()):
+        free, self._on_release = self._on_release, None
+        petsc, self._petsc = [r for r in self._petsc if hasattr(r, "destroy")], ()
+        if free is not None:
+            free()
+        for obj in petsc:
             obj.destroy()
-        self._petsc = ()
+        self.disable("was released")
+        if free is not None or petsc:
+            return_free_memory()
 
-        def released(b: np.ndarray) -> np.ndarray:
-            raise RuntimeError(f"the factorisation of {self.label or 'a matrix'} was released")
+    def supersede(self, why: str) -> None:
+        """Another factorisation took over the shared factors: no ``on_release`` any more, solves raise."""
+        self._on_release = None
+        self.disable(why)
 
-        self._solve = released
+    def disable(self, why: str) -> None:
+        """Make every later solve raise ``RuntimeError`` ("the factorisation of <label> <why>"); frees nothing."""
+        message = f"the factorisation of {self.label or 'a matrix'} {why}"
+
+        def disabled(b: np.ndarray) -> np.ndarray:
+            raise RuntimeError(message)
+
+        self._solve = disabled
+
+
+def return_free_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc's ``malloc_trim(0)``; elsewhere nothing).
+
+    MUMPS's factors freed by ``destroy()`` otherwise stay in the process (measured at 38k dofs: resident
+    memory 599 MB after a release, 213 MB with the trim, which took ~20 ms).
+    """
+    try:
+        import ctypes
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
 
 
 def _petsc_available() -> bool:
@@ -128,29 +165,68 @@ def _factorize(A, backend: str, counters: Counters | None, label: str) -> Factor
 
 
 def _mumps(A: sp.csr_matrix, counters: Counters | None, label: str) -> Factorization:
-    from petsc4py import PETSc
-
     A = A.astype(float)
     A.sort_indices()
     n = A.shape[0]
-    P = PETSc.Mat().createAIJ(size=A.shape, csr=(A.indptr, A.indices, A.data), comm=PETSc.COMM_SELF)
-    P.assemble()
+    P = petsc_aij(A.indptr, A.indices, A.data, copy=True)
     # cheap probe (two products with A and A^T) instead of forming A - A^T, which took seconds at 100k dofs
-    symmetric = symmetry_defect(A) <= 1e-13
+    ksp = mumps_ksp(P, symmetric=symmetry_defect(A) <= 1e-13)
+    mumps_setup(ksp, label)
+    xv, bv = P.createVecs()
+    return Factorization(ksp_solve_function(ksp, xv, bv, n), n, "mumps", counters, label,
+                         resources=(P, ksp, xv, bv))
+
+
+def petsc_aij(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, *, copy: bool):
+    """A sequential PETSc AIJ matrix of a CSR (sorted column indices, float64 ``data``).
+
+    ``copy=False``: the matrix reads and writes the given arrays (PETSc's ``MatCreateSeqAIJWithArrays``;
+    they must be of PETSc's integer type and stay alive, the caller keeps them); writing ``data`` then
+    changes the matrix (call ``assemble()`` afterwards so that PETSc sees a new state).
+    """
+    from petsc4py import PETSc
+
+    n = len(indptr) - 1
+    if copy:
+        P = PETSc.Mat().createAIJ(size=(n, n), csr=(indptr, indices, data), comm=PETSc.COMM_SELF)
+    else:
+        P = PETSc.Mat().createAIJWithArrays((n, n), (indptr, indices, data), comm=PETSc.COMM_SELF)
+    P.assemble()
+    return P
+
+
+def mumps_ksp(P, *, symmetric: bool):
+    """A direct-solve KSP (``preonly``) with MUMPS on the PETSc matrix ``P``, not yet set up.
+
+    Symmetric matrices (K - sigma M, also indefinite): MUMPS LDL^T (PETSc ``cholesky``), measured 1.45x
+    faster than LU on a 16k-dof hex27 cap, with MUMPS's default ordering: PORD in Debian's build
+    (INFOG(7) = 4; METIS and SCOTCH are not built in, AMF measured no faster nor smaller at 112k dofs,
+    AMD and QAMD 4% more factor entries). (An ICNTL(7) set on the factor matrix before the set-up was
+    not applied by PETSc 3.18: only the options database ``-mat_mumps_icntl_7`` is.)
+    """
+    from petsc4py import PETSc
+
     ksp = PETSc.KSP().create(PETSc.COMM_SELF)
     ksp.setOperators(P)
     ksp.setType("preonly")
     pc = ksp.getPC()
-    # symmetric matrices (K - sigma M, also indefinite): MUMPS LDL^T with the AMF ordering,
-    # measured 1.45x faster than LU with the default ordering on a 16k-dof hex27 cap
     pc.setType("cholesky" if symmetric else "lu")
     pc.setFactorSolverType("mumps")
     pc.setFactorSetUpSolverType()
-    F = pc.getFactorMatrix()
-    F.setMumpsIcntl(7, 2)
-    ksp.setUp()
-    xv, bv = P.createVecs()
+    return ksp
 
+
+def mumps_setup(ksp, label: str) -> None:
+    """Factorise (``ksp.setUp()``); MUMPS's error INFOG(1) < 0 (-10: singular) is a :class:`NumericalError`."""
+    ksp.setUp()
+    info = ksp.getPC().getFactorMatrix().getMumpsInfog(1)
+    if info < 0:
+        why = "numerically singular" if info == -10 else "not factorised"
+        raise NumericalError(f"{label or 'matrix'} is {why} (MUMPS INFOG(1) = {info})")
+
+
+def ksp_solve_function(ksp, xv, bv, n: int) -> Callable[[np.ndarray], np.ndarray]:
+    """``solve(b)`` for (n,) or (n, k) ``b`` with a set-up KSP, through its work vectors ``xv``, ``bv``."""
     def solve(b: np.ndarray) -> np.ndarray:
         cols = b.reshape(n, -1)
         out = np.empty_like(cols)
@@ -159,10 +235,7 @@ def _mumps(A: sp.csr_matrix, counters: Counters | None, label: str) -> Factoriza
             ksp.solve(bv, xv)
             out[:, j] = xv.getArray()
         return out.reshape(b.shape)
-
-    fac = Factorization(solve, n, "mumps", counters, label)
-    fac._petsc = (P, ksp, xv, bv)  # keep alive
-    return fac
+    return solve
 
 
 def symmetry_defect(A: sp.spmatrix | np.ndarray, *, seed: int = 0, probes: int = 2) -> float:

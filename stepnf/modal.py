@@ -6,7 +6,10 @@ large ones, or the adapter's own eigen-solver when it declares
 ``provides_eigenmodes``. When the sparse path finds rigid-body modes, the
 elastic ones are computed again with the rigid ones projected out (same
 factorisation): a cluster of rigid modes at ``1/|sigma|`` otherwise costs
-the elastic frequencies up to ~1e-4 of their accuracy.
+the elastic frequencies up to ~1e-4 of their accuracy. When the run needs more
+modes than the first batch holds, the next ones are computed with every mode
+found so far projected out, on the same factorisation, and merged
+(:mod:`stepnf.eigen_extension`); the adapter's eigen-solver starts over instead.
 
 Rigid-body modes are the eigenvalues with ``|w^2| <= rigid_tolerance * lambda_scale``
 where ``lambda_scale = max(diag K / diag M)`` bounds the largest eigenvalue
@@ -30,8 +33,14 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .counters import Counters
+from .eigen_extension import extension_size, merged_modes, shift_invert_modes
 from .errors import NumericalError
-from .linalg import DENSE_LIMIT, shifted_factorization
+from .linalg import DENSE_LIMIT
+from .shifted import ShiftedFactorizer
+
+
+#: Room for rigid-body modes in a first eigen-solve that has to find them (a free 3D body has six).
+_RIGID_ROOM = 6
 
 
 @dataclass
@@ -144,6 +153,7 @@ def modal_analysis(
     eigensolver: Callable[[int, float], tuple[np.ndarray, np.ndarray]] | None = None,
     rigid_candidates: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
+    first_batch: int | None = None,
 ) -> ModalBasis:
     """Lowest elastic modes of ``(K, M)``.
 
@@ -151,10 +161,15 @@ def modal_analysis(
     small enough for a dense solve) and, when ``min_omega`` is given, keeps
     going until the highest computed frequency exceeds it (up to
     ``max_modes``); ``enough(basis)`` may ask for more modes still (e.g.
-    until a labelled master mode is found). ``eigensolver(k, shift=...)`` is the
+    until a labelled master mode is found). The sparse path extends its basis
+    batch by batch (:func:`stepnf.eigen_extension.extension_size` modes more
+    each time) on one factorisation. ``eigensolver(k, shift=...)`` is the
     adapter's own solver. ``rigid_candidates`` (n, 6), e.g. from
     :func:`rigid_body_fields`, lets the sparse path find the rigid-body modes
-    without Lanczos and project them out from the start.
+    without Lanczos and project them out from the start. ``first_batch``: the
+    sparse path's first Lanczos run computes that many modes (default
+    ``n_modes`` + 4 for twins, + room for the rigid-body modes when they are
+    not known beforehand), e.g. a guess from the number of labelled masters.
     """
     n = K.shape[0]
     if K.shape != (n, n) or M.shape != (n, n):
@@ -172,73 +187,115 @@ def modal_analysis(
         return _split(lam, vec, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, True, "dense")
 
     need = max(int(n_modes or 1), 1)
+    if eigensolver is not None:
+        return _adapter_modes(eigensolver, M, need, _first_size(need, first_batch, rigid_modes), scale,
+                              rigid_tolerance, rigid_modes, degeneracy_tolerance, min_omega, enough, max_modes,
+                              progress)
     # a small negative shift: K - sigma M is regular even with rigid-body modes
     sigma = -1e-10 * scale if scale > 0 else -1.0
-    R = None  # rigid modes, once known: the Lanczos runs then project them out
-    if rigid_candidates is not None and rigid_modes is None and eigensolver is None:
+    R = None  # rigid modes, when the dof geometry gives them: every Lanczos run then projects them out
+    if rigid_candidates is not None and rigid_modes is None:
         R = rigid_modes_from(K, M, rigid_candidates, scale, rigid_tolerance)
-    fac = None
+    # on the union pattern of K and M, shared with them: no copy of the indices, no sparse sum kept
+    fac = ShiftedFactorizer(K, M, counters=counters, backend=backend).factorizer(sigma, "K - sigma M (eigen-solve)")
+    k = _first_size(need, first_batch, rigid_modes if R is None else 0)  # R known: no room for it
+    k = min(k, n - 2 - (R.shape[1] if R is not None else 0))
+    if progress:
+        progress(f"eigen-solve: {k} modes of a {n}-dof model")
     calls = [0]
-    k = need + 4 if R is not None else need + (6 if rigid_modes is None else int(rigid_modes)) + 4  # +4: twins
+    basis = _first_batch(K, M, sigma, fac, k, R, calls, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance,
+                         f"shift-invert Lanczos ({fac.backend})")
+    if counters is not None:
+        counters.eigensolver_solves += calls[0]
+    basis.factorization, basis.shift = fac, sigma
     while True:
-        k = min(k, n - 2 - (R.shape[1] if R is not None else 0))
+        room = min(max_modes - basis.n_elastic, n - 2 - basis.n_elastic - basis.rigid.shape[1])
+        if room <= 0 or _satisfied(basis, need, min_omega, enough):
+            return basis
+        more = min(extension_size(basis.n_elastic, need), room)
+        if progress:
+            progress(f"eigen-solve: {more} more modes of a {n}-dof model ({basis.n_elastic} found)")
+        basis = extend_basis(K, M, basis, more, counters=counters, degeneracy_tolerance=degeneracy_tolerance)
+
+
+def extend_basis(K: sp.spmatrix, M: sp.spmatrix, basis: ModalBasis, more: int, *, counters: Counters | None = None,
+                 degeneracy_tolerance: float = 1e-4) -> ModalBasis:
+    """``basis`` and its next ``more`` elastic modes, on the basis' own factorisation.
+
+    The new modes are computed with every mode of ``basis`` (rigid and elastic) projected out
+    M-orthogonally (:mod:`stepnf.eigen_extension`), then merged by frequency: a mode an earlier
+    batch missed comes back in its place. Degenerate groups are those of the merged frequencies
+    (relative ``degeneracy_tolerance``). ``basis`` must come from the sparse path (it carries
+    ``factorization`` and ``shift``); ``counters.eigensolver_solves`` counts the shifted solves.
+    """
+    if basis.factorization is None:
+        raise ValueError("extend_basis needs a basis from the sparse path (with its factorisation)")
+    calls = [0]
+    Q = np.column_stack([basis.rigid, basis.phi])
+    more = min(int(more), K.shape[0] - Q.shape[1] - 2)  # ARPACK: k + q < n, plus one vector to spare
+    if more < 1:
+        raise ValueError(f"no mode left to add: {Q.shape[1]} of {K.shape[0]} found")
+    lam, vec = shift_invert_modes(K, M, basis.shift, basis.factorization, more, Q, calls)
+    if counters is not None:
+        counters.eigensolver_solves += calls[0]
+    new = _deflated_basis(lam, vec, M, basis.rigid, basis.rigid_eigenvalues, degeneracy_tolerance, basis.solver)
+    omega, phi = merged_modes(basis.omega, basis.phi, new.omega, new.phi)
+    return ModalBasis(omega=omega, phi=phi, rigid=basis.rigid, rigid_eigenvalues=basis.rigid_eigenvalues,
+                      degenerate_groups=degenerate_groups(omega, degeneracy_tolerance), complete=False,
+                      solver=basis.solver, factorization=basis.factorization, shift=basis.shift)
+
+
+def _satisfied(basis: ModalBasis, need: int, min_omega: float | None,
+               enough: Callable[[ModalBasis], bool] | None) -> bool:
+    """Whether ``basis`` holds ``need`` elastic modes, reaches ``min_omega`` and passes ``enough``."""
+    done = basis.n_elastic >= need and (min_omega is None or basis.omega[-1] > min_omega)
+    return done and (enough is None or enough(basis))
+
+
+def _first_size(need: int, first_batch: int | None, rigid_modes: int | None) -> int:
+    """Modes of the first eigen-solve: the elastic ones (``first_batch``, or ``need`` + 4 for a twin
+    and the modes just above) and room for the rigid ones it has to find (``rigid_modes``, the
+    scene's count; six when None; 0 when they are projected out from the start)."""
+    elastic = need + 4 if first_batch is None else max(int(first_batch), 1)
+    return elastic + (_RIGID_ROOM if rigid_modes is None else int(rigid_modes))
+
+
+def _adapter_modes(eigensolver, M, need: int, k: int, scale: float, rigid_tolerance: float,
+                   rigid_modes: int | None, degeneracy_tolerance: float, min_omega: float | None, enough,
+                   max_modes: int, progress) -> ModalBasis:
+    """The adapter's own eigen-solver, ``k`` modes first: it cannot project found modes out, so a
+    run that needs more modes starts over with about twice as many."""
+    n = M.shape[0]
+    while True:
+        k = min(k, n - 2)
         if progress:
             progress(f"eigen-solve: {k} modes of a {n}-dof model")
-        if eigensolver is not None:
-            lam, vec = eigensolver(k, shift=0.0)
-            basis = _split(np.asarray(lam, dtype=float), vec, M, scale, rigid_tolerance, rigid_modes,
-                           degeneracy_tolerance, False, "adapter")
-        else:
-            if fac is None:
-                fac = shifted_factorization(K, M, sigma, counters=counters, backend=backend,
-                                            label="K - sigma M (eigen-solve)")
-            solver = f"shift-invert Lanczos ({fac.backend})"
-            if R is None:
-                lam, vec = _lanczos(K, M, sigma, fac, k, None, calls)
-                basis = _split(lam, vec, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, False,
-                               solver)
-                if basis.rigid.shape[1] and basis.n_elastic:
-                    # The rigid modes sit at 1/|sigma| in the shift-inverted spectrum and swamp the
-                    # elastic ones (errors ~1e-4 on small models): redo the elastic modes with the rigid
-                    # ones projected out, same factorisation.
-                    R = basis.rigid
-                    lam, vec = _lanczos(K, M, sigma, fac, min(basis.n_elastic, n - R.shape[1] - 1), R, calls)
-                    basis = _deflated_basis(lam, vec, M, R, basis.rigid_eigenvalues, degeneracy_tolerance, solver)
-            else:
-                lam, vec = _lanczos(K, M, sigma, fac, k, R, calls)
-                basis = _deflated_basis(lam, vec, M, R, np.zeros(R.shape[1]), degeneracy_tolerance, solver)
-        if eigensolver is None and counters is not None:
-            counters.eigensolver_solves += calls[0]
-            calls[0] = 0
-        done = basis.n_elastic >= need and (min_omega is None or basis.omega[-1] > min_omega)
-        if fac is not None:
-            basis.factorization, basis.shift = fac, sigma
-        if done and (enough is None or enough(basis)):
-            return basis
-        if k >= min(max_modes, n - 2):
+        lam, vec = eigensolver(k, shift=0.0)
+        basis = _split(np.asarray(lam, dtype=float), vec, M, scale, rigid_tolerance, rigid_modes,
+                       degeneracy_tolerance, False, "adapter")
+        if _satisfied(basis, need, min_omega, enough) or k >= min(max_modes, n - 2):
             return basis
         k = min(max(2 * k, k + 8), max_modes, n - 2)
 
 
-def _lanczos(K, M, sigma: float, fac, k: int, R: np.ndarray | None, calls: list[int]):
-    """``k`` eigenpairs nearest ``sigma`` by shift-invert Lanczos, with the columns of R projected out."""
+def _first_batch(K, M, sigma: float, fac, k: int, R: np.ndarray | None, calls: list[int], scale: float,
+                 rigid_tolerance: float, rigid_modes: int | None, degeneracy_tolerance: float,
+                 solver: str) -> ModalBasis:
+    """The lowest ``k`` modes by shift-invert Lanczos (elastic ones only when ``R`` is known)."""
     n = K.shape[0]
-    if R is None or R.shape[1] == 0:
-        def opinv(b: np.ndarray) -> np.ndarray:
-            calls[0] += 1
-            return fac.solve(b, count=False)
-    else:
-        MR = M @ R
-
-        def opinv(b: np.ndarray) -> np.ndarray:
-            calls[0] += 1
-            x = fac.solve(b - MR @ (R.T @ b), count=False)
-            return x - R @ (MR.T @ x)
-
-    Op = spla.LinearOperator((n, n), matvec=opinv, dtype=float)
-    lam, vec = spla.eigsh(sp.csr_matrix(K), k=k, M=sp.csr_matrix(M), sigma=sigma, which="LM", OPinv=Op, tol=1e-12)
-    order = np.argsort(lam)
-    return lam[order], vec[:, order]
+    if R is not None:
+        lam, vec = shift_invert_modes(K, M, sigma, fac, k, R, calls)
+        return _deflated_basis(lam, vec, M, R, np.zeros(R.shape[1]), degeneracy_tolerance, solver)
+    lam, vec = shift_invert_modes(K, M, sigma, fac, k, None, calls)
+    basis = _split(lam, vec, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, False, solver)
+    if basis.rigid.shape[1] and basis.n_elastic:
+        # The rigid modes sit at 1/|sigma| in the shift-inverted spectrum and swamp the elastic ones
+        # (errors ~1e-4 on small models): redo the elastic modes with the rigid ones projected out,
+        # same factorisation.
+        R = basis.rigid
+        lam, vec = shift_invert_modes(K, M, sigma, fac, min(basis.n_elastic, n - R.shape[1] - 1), R, calls)
+        basis = _deflated_basis(lam, vec, M, R, basis.rigid_eigenvalues, degeneracy_tolerance, solver)
+    return basis
 
 
 def _deflated_basis(lam, vec, M, R, rigid_eigenvalues, degeneracy_tolerance, solver) -> ModalBasis:

@@ -35,6 +35,18 @@ def modes_needed(state: RunState) -> int:
     return max(need, state.n_ret) if state.needs_modal else need
 
 
+def first_batch(state: RunState) -> int | None:
+    """Modes of the first eigen-solve when masters are labels: two per master (each may be one of a
+    degenerate pair) and four more (the modes just above the highest one), at least
+    :func:`modes_needed`; None (the eigen-solve's own default) when every master is an index. On the
+    paper's cap (six labelled masters, the highest the 14th mode) that is one run of 16 modes where a
+    first run of 6 had to be extended."""
+    masters = state.scene.master_modes
+    if not any(isinstance(m, str) for m in masters):
+        return None
+    return max(modes_needed(state), 2 * len(masters) + 4)
+
+
 def enough_modes(state: RunState, labels: ModeLabels) -> Callable[[ModalBasis], bool]:
     """Whether a partial basis holds every master mode and the modes just above the highest one."""
     scene, tol = state.scene, state.tol
@@ -67,7 +79,8 @@ def modes_stage(state: RunState) -> None:
                                rigid_tolerance=scene.rigid_tolerance, rigid_modes=scene.rigid_modes,
                                degeneracy_tolerance=scene.degeneracy_tolerance, max_modes=scene.max_modes,
                                backend=state.backend, eigensolver=eig, enough=enough_modes(state, labels),
-                               rigid_candidates=state.candidates, progress=state.progress.message)
+                               rigid_candidates=state.candidates, progress=state.progress.message,
+                               first_batch=first_batch(state))
     check_elastic_modes(scene, basis)
     check_mechanism(scene, adapter, basis)
     orient_degenerate(basis, M, probe_vector(state.X, state.dirs, state.n))  # the same twins whatever the solver
