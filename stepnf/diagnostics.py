@@ -161,25 +161,56 @@ def coupling_floor(st, Phi: np.ndarray, M: sp.spmatrix, tol: Tolerances) -> np.n
     return floor
 
 
-def inverse_mass_norm2(M: sp.spmatrix, v: np.ndarray) -> float:
-    """``v^T M^-1 v`` by Jacobi-preconditioned CG to 1e-10 (M is well conditioned)."""
-    import scipy.sparse.linalg as spla
+#: relative accuracy of :func:`inverse_mass_norm2` (its consumers compare shares with 50% and 99%)
+INVERSE_MASS_RTOL = 1e-5
 
+
+def inverse_mass_norm2(M: sp.spmatrix, v: np.ndarray, rtol: float = INVERSE_MASS_RTOL,
+                       maxiter: int = 500) -> float:
+    """``v^T M^-1 v`` (units of v squared per mass) to a relative accuracy ``rtol``, by Jacobi-preconditioned CG.
+
+    From ``x_0 = 0``, CG's ``v^T x_k = sum_{j<k} alpha_j gamma_j`` increases
+    to ``v^T M^-1 v`` and the rest is the energy error ``sum_{j>=k} alpha_j
+    gamma_j``: the estimate is a lower bound (a captured share computed with it
+    an upper bound). CG stops when that rest, extrapolated geometrically from
+    the last increments (ratio q: ``increment / (1 - q)``), is below ``rtol``
+    times the sum. Accuracy needed: the share is compared with 50% (the table's
+    n/a) and 99% (``modal_truncation`` flag), where 0.989 against 0.991 flips
+    the flag: 1e-3 relative would do; the default 1e-5 leaves a factor 100 for
+    the extrapolation, and costs about a quarter of the iterations of the
+    former residual test at 1e-10 (which resolved the energy to ~1e-20).
+    Independent of the scaling of M (shell rotations): the test is on the
+    energy itself. A non-positive diagonal or curvature of M, or no
+    convergence in ``maxiter`` iterations, raises :class:`NumericalError`.
+    """
+    v = np.asarray(v, dtype=float)
     if not np.any(v):
         return 0.0
-    d = np.asarray(M.diagonal()).ravel()
-    x, info = spla.cg(M, v, M=sp.diags(1.0 / d), atol=0.0, maxiter=500, **_cg_rtol(1e-10))
-    return float(v @ x)
-
-
-def _cg_rtol(rtol: float) -> dict[str, float]:
-    """The relative tolerance of ``scipy.sparse.linalg.cg``: ``rtol`` since SciPy 1.12 (Debian 13's
-    1.15 refuses ``tol``), ``tol`` before (Debian 12's 1.10)."""
-    import inspect
-
-    import scipy.sparse.linalg as spla
-
-    return {"rtol" if "rtol" in inspect.signature(spla.cg).parameters else "tol": rtol}
+    d = np.asarray(M.diagonal(), dtype=float).ravel()
+    if np.any(d <= 0):
+        raise NumericalError("the mass matrix has non-positive diagonal entries: its M^-1 norm is undefined")
+    r, total, last = v.copy(), 0.0, np.inf
+    z = r / d
+    p, gamma = z.copy(), float(r @ z)
+    for _ in range(maxiter):
+        Mp = M @ p
+        curv = float(p @ Mp)
+        if curv <= 0:
+            raise NumericalError("the mass matrix is not positive definite (CG met p^T M p <= 0)")
+        alpha = gamma / curv
+        step = alpha * gamma
+        total += step
+        q = min(step / last, 1.0)
+        if q < 1.0 and step / (1.0 - q) <= rtol * total:
+            return total
+        last = step
+        r -= alpha * Mp
+        z = r / d
+        gamma, gamma_old = float(r @ z), gamma
+        if gamma <= 0:  # r = 0: exact (M diagonal, or a vector M maps from a few of its columns)
+            return total
+        p = z + (gamma / gamma_old) * p
+    raise NumericalError(f"v^T M^-1 v: Jacobi-preconditioned CG did not reach {rtol:g} in {maxiter} iterations")
 
 
 def captured_fraction_of_norm(g_retained: np.ndarray, norm2: float) -> float:

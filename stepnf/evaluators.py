@@ -58,6 +58,7 @@ from .counters import Counters
 from .errors import NumericalError
 from .deflation import DeflatedSolver
 from .linalg import Factorization, PseudoInverse, factorize
+from .linearised import Spectrum, qm_T_error
 
 
 @dataclass(frozen=True)
@@ -209,6 +210,11 @@ class FullOrderContext:
         """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free."""
         if self._last is not None and self._last[0] == sigma:
             return self._last[1]
+        refactor = getattr(self.shifted, "refactor", None)
+        if refactor is not None:  # one instance for every shift: the previous one superseded, its analysis kept
+            fac = refactor(sigma, label)
+            self._last = (sigma, fac)
+            return fac
         self.release_shifted()  # free the previous factors before making new ones
         if self.shifted is not None:
             fac = self.shifted(sigma, label)
@@ -265,19 +271,29 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
 
 
 def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
-             ctx: FullOrderContext, y: np.ndarray | None = None) -> MethodResult:
-    """Static modal derivative quadratic manifold, full order: ``theta = -2 K^+ Gv`` (one solve, or none given y)."""
+             ctx: FullOrderContext, y: np.ndarray | None = None, *, dGv: np.ndarray | None = None,
+             dh: float = 0.0, spectrum: Spectrum | None = None) -> MethodResult:
+    """Static modal derivative quadratic manifold, full order: ``theta = -2 K^+ Gv`` (one solve, or none given y).
+
+    With ``dGv``, ``dh`` (differences at the STEP check amplitude, as for
+    :func:`dnf`) ``T_error`` is the first-order change of T, without a solve
+    (:func:`~stepnf.linearised.qm_T_error`; ``spectrum``: the computed modes, see there).
+    """
     if y is None:
         y = ctx.Kpinv(Gv)
     theta = -2.0 * y
-    return _qm_full("smd", phi, omega_p, Gv, h, theta, ctx)
+    res, forms = _qm_full("smd", phi, omega_p, Gv, h, theta, ctx)
+    if dGv is not None:
+        res.T_error = qm_T_error(res, forms, phi, omega_p, theta, 0.0, ctx.Kpinv.R, dGv, dh, spectrum)
+    return res
 
 
 def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
             twins: np.ndarray | None = None, *, g: np.ndarray | None = None,
             tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None,
             exclude: Sequence[int] | None = None, twin_index: Sequence[int] | None = None,
-            labels: Sequence[Any] | None = None) -> MethodResult:
+            labels: Sequence[Any] | None = None, dGv: np.ndarray | None = None, dh: float = 0.0,
+            spectrum: Spectrum | None = None) -> MethodResult:
     """Modal-derivative quadratic manifold, full order.
 
     ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
@@ -286,10 +302,25 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
     not zero by symmetry) makes MD diverge: T = -inf, flagged. With
     ``ctx.deflated`` and ``exclude`` (the columns of its modes that are p and
     its twins) the same theta comes from the computed modes and CG, without
-    a factorisation.
+    a factorisation. With ``dGv``, ``dh`` (differences at the STEP check
+    amplitude) and ``spectrum`` (the computed modes, needed: the resolvent
+    ``(K - w^2 M)^-1`` is indefinite) ``T_error`` is the first-order change
+    of T, without a solve (:func:`~stepnf.linearised.qm_T_error`); none when T diverges.
     """
     w2 = omega_p ** 2
     D = phi[:, None] if twins is None or len(twins) == 0 else np.column_stack([phi, twins])
+    res, theta, forms = _md_theta_result(p, phi, omega_p, Gv, h, ctx, D, g, tol, floor, exclude, twin_index, labels)
+    if dGv is not None and theta is not None:
+        res.T_error = qm_T_error(res, forms, phi, omega_p, theta, w2, D, dGv, dh, spectrum)
+    return res
+
+
+def _md_theta_result(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
+                     D: np.ndarray, g: np.ndarray | None, tol: Tolerances, floor: np.ndarray | float | None,
+                     exclude: Sequence[int] | None, twin_index: Sequence[int] | None,
+                     labels: Sequence[Any] | None) -> tuple[MethodResult, np.ndarray | None, tuple | None]:
+    """:func:`md_full`'s result (T, C, flags, fields), theta and its forms (None when MD diverges)."""
+    w2 = omega_p ** 2
     flags: list[dict] = []
     if D.shape[1] > 1:
         gt = D[:, 1:].T @ Gv
@@ -304,31 +335,32 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
                           "message": f"MD: {name}, a degenerate twin of master mode {p}, couples "
                                      f"(|g| = {np.abs(gt).max():.3e}): the modal derivative diverges"})
             return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
-                                flags, order="full")
+                                flags, order="full"), None, None
     if ctx.deflated is not None and exclude is not None:
         theta = ctx.deflated.solve(-2.0 * Gv, w2, exclude=exclude)
-        res = _qm_full("md", phi, omega_p, Gv, h, theta, ctx)
-        res.flags = flags + res.flags
-        return res
-    MD = ctx.M @ D
-    A = sp.bmat([[sp.csr_matrix(ctx.K) - w2 * sp.csr_matrix(ctx.M), sp.csr_matrix(MD)],
-                 [sp.csr_matrix(MD.T), None]]).tocsr()
-    try:
-        fac = factorize(A, counters=ctx.counters, backend=ctx.backend, label=f"bordered K - w^2 M (mode {p})")
-        theta = fac.solve(np.concatenate([-2.0 * Gv, np.zeros(D.shape[1])]))[: len(Gv)]
-    except NumericalError as exc:  # a mode at exactly w_p that is not among the twins: MD diverges
-        flags.append({"kind": "internal_resonance_1_1", "mode": None,
-                      "message": f"MD: K - w^2 M is singular beyond the twins of master mode {p} "
-                                 f"(an undeclared mode at the same frequency): modal derivative diverges ({exc})"})
-        return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
-                            flags, order="full")
-    res = _qm_full("md", phi, omega_p, Gv, h, theta, ctx)
+    else:
+        MD = ctx.M @ D
+        A = sp.bmat([[sp.csr_matrix(ctx.K) - w2 * sp.csr_matrix(ctx.M), sp.csr_matrix(MD)],
+                     [sp.csr_matrix(MD.T), None]]).tocsr()
+        try:
+            fac = factorize(A, counters=ctx.counters, backend=ctx.backend,
+                            label=f"bordered K - w^2 M (mode {p})")
+            theta = fac.solve(np.concatenate([-2.0 * Gv, np.zeros(D.shape[1])]))[: len(Gv)]
+        except NumericalError as exc:  # a mode at exactly w_p that is not among the twins: MD diverges
+            flags.append({"kind": "internal_resonance_1_1", "mode": None,
+                          "message": f"MD: K - w^2 M is singular beyond the twins of master mode {p} (an "
+                                     f"undeclared mode at the same frequency): modal derivative diverges ({exc})"})
+            return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
+                                flags, order="full"), None, None
+    res, forms = _qm_full("md", phi, omega_p, Gv, h, theta, ctx)
     res.flags = flags + res.flags
-    return res
+    return res, theta, forms
 
 
 def _qm_full(method: str, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
-             theta: np.ndarray, ctx: FullOrderContext) -> MethodResult:
+             theta: np.ndarray, ctx: FullOrderContext) -> tuple[MethodResult, tuple[float, float, float]]:
+    """T of the quadratic manifold ``u = phi R + theta R^2 / 2`` (:func:`~stepnf.backbone.qm_coefficients`),
+    and the forms ``(mu2, k2, t) = (theta^T M theta, theta^T K theta, theta^T Gv)``."""
     Mt = ctx.M @ theta
     mu1 = float(phi @ Mt)
     mu2 = float(theta @ Mt)
@@ -338,4 +370,4 @@ def _qm_full(method: str, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: fl
     res = MethodResult(method, backbone_T(C, omega_p), C, [], order="full")
     if ctx.keep_fields:
         res.fields = {"theta": theta}
-    return res
+    return res, (mu2, k2, t)

@@ -7,6 +7,7 @@ from ..backbone import MethodResult
 from ..diagnostics import captured_share, floor_scale, merge_flags, one_two_flags, t_error, truncation_flags
 from ..evaluators import (Tolerances, dnf, md_full, md_modal, nf_modal, resonance_flags, retained_set, smd_full,
                           smd_modal)
+from ..linearised import Spectrum
 from .context import full_order_context
 from .master import MasterData
 from .state import MODAL_METHODS, RunState
@@ -40,8 +41,7 @@ def run_modal(state: RunState, d: MasterData, ev: str) -> MethodResult:
 def run_dnf(state: RunState, d: MasterData) -> MethodResult:
     """Direct normal form on the whole mesh, flagged for 1:2 resonances; keeps its solution in ``d.y``."""
     p, st, omega = d.p, d.st, state.omega
-    dG = st.Gv - st.Gv_check if st.Gv_check is not None else None
-    dh = st.h - st.h_check if st.h_check is not None else 0.0
+    dG, dh = check_differences(st)
     r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh)
     r.flags = merge_flags(r.flags, one_two_flags(p, omega[p], st, state.basis, full_order_context(state),
                                                  floor_scale(st, state.M, state.tol), state.tol, state.adapter,
@@ -49,28 +49,49 @@ def run_dnf(state: RunState, d: MasterData) -> MethodResult:
     return r
 
 
+def computed_spectrum(state: RunState) -> Spectrum:
+    """The computed modes ``[R, Phi]``, their ``w^2`` (rigid: 0) and ``M [R, Phi]``, for the linearised
+    ``T_error``: the deflated solver's own arrays when it runs (no new product), else computed here."""
+    defl = full_order_context(state).deflated
+    if defl is not None:
+        return Spectrum(defl.Psi, defl.lam, defl.MPsi)
+    R = state.basis.rigid
+    modes = np.column_stack([R, state.phi]) if R.shape[1] else state.phi
+    return Spectrum(modes, np.concatenate([np.zeros(R.shape[1]), state.omega**2]), state.M @ modes)
+
+
+def check_differences(st) -> tuple[np.ndarray | None, float]:
+    """``(Gv - Gv_check, h - h_check)`` of a targeted STEP, ``(None, 0)`` without a check amplitude."""
+    if st.Gv_check is None:
+        return None, 0.0
+    return st.Gv - st.Gv_check, st.h - st.h_check
+
+
 def run_smd_full(state: RunState, d: MasterData) -> MethodResult:
-    """Static modal derivatives at full order (reusing DNF's K^+ solve when DNF ran first)."""
+    """Static modal derivatives at full order (reusing DNF's K^+ solve when DNF ran first).
+
+    ``T_error`` is the first-order change of T between the STEP amplitudes (no solve at the check amplitude).
+    """
     p, st, omega = d.p, d.st, state.omega
-    r = smd_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), y=d.y)
-    if st.Gv_check is not None:  # T again at the check amplitude: one more K^+ solve
-        r.T_error = t_error(r.T, smd_full(p, d.phi, omega[p], st.Gv_check, st.h_check, full_order_context(state)).T)
-    return r
+    dG, dh = check_differences(st)
+    return smd_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), y=d.y, dGv=dG, dh=dh,
+                    spectrum=computed_spectrum(state) if dG is not None else None)
 
 
 def run_md_full(state: RunState, d: MasterData) -> MethodResult:
-    """Modal derivatives at full order (bordered solves), the master's twins excluded, resonances flagged."""
+    """Modal derivatives at full order (bordered solves), the master's twins excluded, resonances flagged.
+
+    ``T_error`` is the first-order change of T between the STEP amplitudes (no solve at the check amplitude).
+    """
     p, st, omega, twins = d.p, d.st, state.omega, d.twins
     tw = state.phi[:, twins] if twins else None
     nr = state.basis.rigid.shape[1]
-    kw = dict(g=d.g_all, tol=state.tol, floor=d.floor, exclude=[nr + p] + [nr + t for t in twins],
-              twin_index=twins, labels=state.labels)
-    r = md_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), tw, **kw)
+    dG, dh = check_differences(st)
+    r = md_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), tw, g=d.g_all, tol=state.tol,
+                floor=d.floor, exclude=[nr + p] + [nr + t for t in twins], twin_index=twins, labels=state.labels,
+                dGv=dG, dh=dh, spectrum=computed_spectrum(state) if dG is not None else None)
     r.flags += resonance_flags("md", p, omega, d.g_all, [s for s in range(state.m) if s not in twins], 1.0,
                                state.tol, state.labels, d.floor)
-    if st.Gv_check is not None and np.isfinite(r.T):  # T again at the check amplitude
-        r2 = md_full(p, d.phi, omega[p], st.Gv_check, st.h_check, full_order_context(state), tw, **kw)
-        r.T_error = t_error(r.T, r2.T)
     return r
 
 
