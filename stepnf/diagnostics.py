@@ -56,7 +56,7 @@ def one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext
         near_w, near_phi = basis.omega, basis.phi  # every mode near 2 w_p is among the computed ones
     else:
         try:
-            near_w, near_phi = ritz_near(ctx, 4 * w * w, st.Gv, counters)
+            near_w, near_phi = ritz_near(ctx, 4 * w**2, st.Gv, counters)  # as dnf: the slot's shift, bit for bit
         except NumericalError:  # K - 4 w^2 M singular: DNF has flagged the exact resonance already
             return []
     g = near_phi.T @ st.Gv

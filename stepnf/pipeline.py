@@ -21,7 +21,7 @@ from .adapter import SolverAdapter
 from .checkpoint import Checkpoint
 from .errors import SceneError
 from .modal_model import ModalModel
-from .progress import Progress
+from .progress import Progress, memory_now
 from .registry import build_model, get_solver
 from .results import RunResult, write_hdf5
 from .scene import Scene
@@ -80,6 +80,8 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
         raise
     result.timings.update(progress.timings)
     result.timings["total"] = time.perf_counter() - t_start
+    result.memory.update(progress.memory)
+    result.memory["total"] = memory_now()
     if writing:
         path = scene.output_dir / f"{scene.output_name}.h5"
         try:

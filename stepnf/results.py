@@ -3,7 +3,8 @@
 The JSON document (``stepnf run --json``) holds at least ``modes`` (each with
 ``index``, ``label``, ``omega``, ``rho`` and ``methods``: ``nf``/``dnf``/``md``/
 ``smd`` -> ``{T, C, flags, ...}``) and ``counts`` (``force_evaluations``,
-``linear_solves``, ``factorizations``). The HDF5 file (root attributes
+``linear_solves``, ``factorizations``), ``timings`` (stage -> seconds) and
+``memory`` (stage -> peak and current resident MiB at its end). The HDF5 file (root attributes
 ``format = "stepnf-run"``, ``format_version = 1``) is built in memory and
 written by :mod:`stepnf.atomic`, so a crash or a full disk never leaves a
 half-written file and never destroys the previous one.
@@ -96,6 +97,9 @@ class RunResult:
     #: ``[analysis.backbone]``: master index -> its :class:`stepnf.dpim.DPIMResult` (to rebuild x(theta) at an
     #: amplitude); not stored: the JSON block, the HDF5 arrays ``backbone_<p>_*`` hold what is kept
     backbones: dict[int, Any] = field(default_factory=dict, repr=False)
+    #: stage key -> ``{"peak_rss_mb", "rss_mb"}`` at the stage's end (MiB; this process, or this MPI rank:
+    #: rank 0's in the stored file), plus ``"total"`` at the run's end (:func:`stepnf.progress.memory_now`)
+    memory: dict[str, dict[str, float | None]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -106,6 +110,7 @@ class RunResult:
             "modes": [m.to_dict() for m in self.modes],
             "counts": self.counts,
             "timings": {k: round(v, 6) for k, v in self.timings.items()},
+            "memory": self.memory,
             "spectrum": self.spectrum,
             "flags": self.flags,
             "hdf5": self.hdf5_path,

@@ -33,7 +33,8 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
                                              T_error=_float(r.get("T_error")), gamma=_float(r.get("gamma")))
         modes.append(rec)
     return RunResult(scene=dict(doc.get("scene") or {}), modes=modes, counts=dict(doc.get("counts") or {}),
-                     timings=dict(doc.get("timings") or {}), spectrum=dict(doc.get("spectrum") or {}),
+                     timings=dict(doc.get("timings") or {}), memory=dict(doc.get("memory") or {}),
+                     spectrum=dict(doc.get("spectrum") or {}),
                      model=dict(doc.get("model") or {}), kappa=_float(doc.get("kappa")),
                      flags=list(doc.get("flags") or []), hdf5_path=doc.get("hdf5"),
                      extra_files=list(doc.get("files") or []))

@@ -1,6 +1,7 @@
 """The full-order linear algebra of the evaluators: ``K^+``, shifted factorisations, deflation."""
 from __future__ import annotations
 
+import time
 from typing import Callable
 
 import numpy as np
@@ -17,10 +18,18 @@ from .state import RunState
 def adapter_shifted(shift_solver: Callable, n: int, counters: Counters) -> Callable[[float, str], Factorization]:
     """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects."""
     def shifted(sigma: float, label: str) -> Factorization:
-        counters.factorizations += 1
-        raw = shift_solver(sigma)
+        raw = timed_factorisation(counters, lambda: shift_solver(sigma))
         return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label)
     return shifted
+
+
+def timed_factorisation(counters: Counters, make: Callable[[], Callable]) -> Callable:
+    """``make()`` (an adapter's factorisation: it returns the solve), counted and timed in ``counters``."""
+    t0 = time.perf_counter()
+    counters.factorizations += 1
+    solve = make()
+    counters.factorization_seconds += time.perf_counter() - t0
+    return solve
 
 
 class DeflatedPinv:
@@ -46,8 +55,7 @@ def deflation_preconditioner(state: RunState, shift_solver: Callable | None) -> 
         F0 = basis.factorization
         return lambda b: F0.solve(b, count=False)
     if shift_solver is not None and scene.deflation and basis.n_elastic and not basis.complete:
-        state.counters.factorizations += 1
-        return shift_solver(-1e-10 * lambda_scale(state.K, state.M))
+        return timed_factorisation(state.counters, lambda: shift_solver(-1e-10 * lambda_scale(state.K, state.M)))
     return None
 
 
