@@ -226,9 +226,11 @@ def test_fenicsx_cap_order5(tmp_path):
     dnf, b = m.methods["dnf"], m.backbone
     # order 3 of the DPIM is DNF's T computed from the same forces: the difference is the round-off of
     # the assembled 3D forces (error_G ~5e-9 of G here, cancellation of element forces), which STEP
-    # measures in the same run as T_error (T at q and q/2; seen 1.3e-7, DPIM vs DNF seen 2.8e-8)
+    # measures in the same run as T_error (T at q and q/2; seen 3.9e-8 to 1.3e-7). T_error is one sample of
+    # that round-off, not a bound: DPIM and DNF each carry their own sample of it (DPIM vs DNF seen 3e-9 to
+    # 6e-8 over ten ARPACK start vectors, up to 1.25 T_error), hence 3 T_error
     assert dnf.T_error is not None and dnf.T_error < 1e-6
-    assert res.backbones[m.index].T == pytest.approx(dnf.T, rel=dnf.T_error)
+    assert res.backbones[m.index].T == pytest.approx(dnf.T, rel=3 * dnf.T_error)
     assert b["order"] == 5 and b["valid_up_to"] is not None
     wh = np.asarray(b["w_max_over_h"])
     assert np.all(np.diff(wh) > 0) and 0.5 < wh[-1] < 5  # the validity limit lies near W_max/h ~ 1
