@@ -80,15 +80,21 @@ def cap_dofs(n_core: int, n_ring: int) -> int:
 
 def resolve_size(name: str) -> tuple[int, int]:
     """(n_core, n_ring) of a ``--sizes`` entry (see the module docstring); ValueError if unreadable."""
+    allowed = f"size {name!r}: use one of {list(SIZES)}, 300k, 1.2M or <n_core>x<n_ring> (integers >= 1)"
     if name in SIZES:
         return SIZES[name]
-    if "x" in name:
-        nc, nr = (int(v) for v in name.split("x"))
-        return nc, nr
-    scale = {"k": 1e3, "M": 1e6}.get(name[-1:])
-    if scale is None:
-        raise ValueError(f"size {name!r}: use one of {list(SIZES)}, 300k, 1.2M or <n_core>x<n_ring>")
-    target = float(name[:-1]) * scale
+    try:
+        if "x" in name:
+            nc, nr = (int(v) for v in name.split("x"))
+            if nc < 1 or nr < 1:
+                raise ValueError(allowed)
+            return nc, nr
+        scale = {"k": 1e3, "M": 1e6}.get(name[-1:])
+        target = float(name[:-1]) * scale if scale is not None else float("nan")
+    except ValueError:
+        raise ValueError(allowed) from None
+    if not target > 0:
+        raise ValueError(allowed)
     # dofs = 9 ((2 nc + 1)^2 + 16 nc nr) with one element through the thickness; nr = nc // 2
     return min(((nc, nc // 2) for nc in range(2, 400)),
                key=lambda p: abs(9 * ((2 * p[0] + 1) ** 2 + 16 * p[0] * p[1]) - target))
