@@ -55,10 +55,13 @@ THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 #: thin 3D solid, whose K spans bending to thickness modes. T and Gamma: [3.9e-9 plate, 9.9e-9 3D cap,
 #: 6.4e-10 shallow shell] except the split twins (2,0) of the 3D cap [8.9e-8], whose mode shapes turn within
 #: the pair under round-off alone (relative gap 1e-4, a mesh artefact; tests/test_mpi.py measured 3e-8 between
-#: two eigen-solvers on one machine). So Gamma agrees to 1e-8 except for that pair.
+#: two eigen-solvers on one machine). So Gamma agrees to 1e-8 except for that pair, and for the exact twins
+#: (2,0) of the shallow shell's disk [5.6e-9 since issue 14's eigen-solve (a 16-mode basis from a fixed ARPACK
+#: start, where a 28-mode one from a random start measured 6.4e-10); that mode's own STEP error estimate of T
+#: is 1.2e-9, so the difference is of the order of the result's round-off].
 RTOL_OMEGA = 2e-9
 RTOL_GAMMA = {"plate": 2e-8, "shell_kappa25": 5e-8, "shallow_shell_kappa25": 5e-9}
-RTOL_GAMMA_TWINS = {("shell_kappa25", (2, 0)): 5e-7}
+RTOL_GAMMA_TWINS = {("shell_kappa25", (2, 0)): 5e-7, ("shallow_shell_kappa25", (2, 0)): 3e-8}
 
 def copy_checkout(dest: Path) -> None:
     """This checkout's tracked and new, not ignored, files (the work tree, as ``git ls-files`` lists it)."""
