@@ -171,6 +171,9 @@ def mpirun_prefix(ranks: int) -> list[str]:
     if ranks == 1:
         return []
     mpirun = shutil.which("mpirun") or shutil.which("mpiexec")
+    if mpirun is None:
+        print("scale.py: --mpi needs mpirun or mpiexec on PATH (Debian: mpi-default-bin)", file=sys.stderr)
+        raise SystemExit(2)
     version = subprocess.run([mpirun, "--version"], capture_output=True, text=True).stdout
     extra = ["--oversubscribe"] if ("Open MPI" in version or "OpenRTE" in version) else []
     return [mpirun, "-n", str(ranks), *extra]
