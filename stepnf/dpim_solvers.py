@@ -18,7 +18,7 @@ Three kinds of shift ``sigma = (m w)^2`` (``w`` the master's angular frequency):
     one factorisation per shift, kept in a dict keyed by the shift and reused
     by every order; made by ``factory(sigma, label)`` (the pipeline's own,
     e.g. ``FullOrderContext.shifted_factorization`` without its one-slot
-    cache, or :func:`stepnf.linalg.shifted_factorization`), or replaced by the
+    cache, or :meth:`stepnf.shifted.ShiftedFactorizer.factorizer`), or replaced by the
     caller's ``deflated`` solver when the shift is admissible for it.
 
 Every solve and factorisation is counted (``solves``, ``factorizations`` and

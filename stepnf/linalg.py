@@ -347,18 +347,3 @@ def apply_columns(solve: Callable[[np.ndarray], np.ndarray], b: np.ndarray) -> n
     if b.ndim == 1:
         return np.asarray(solve(b), dtype=float)
     return np.column_stack([solve(b[:, j]) for j in range(b.shape[1])])
-
-
-def shifted_factorization(K: sp.spmatrix, M: sp.spmatrix, sigma: float, *,
-                          counters: Counters | None = None, backend: str = "auto",
-                          solver_factory: Callable[..., Callable[[np.ndarray], np.ndarray]] | None = None,
-                          label: str = "") -> Factorization:
-    """Factorise ``K - sigma M`` (through the adapter when it offers shifted solves)."""
-    n = K.shape[0]
-    if solver_factory is not None:
-        if counters is not None:
-            counters.factorizations += 1
-        raw = solver_factory(sigma)
-        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label)
-    A = (sp.csr_matrix(K) - sigma * sp.csr_matrix(M)).tocsr()
-    return factorize(A, counters=counters, backend=backend, label=label or f"K - {sigma:.6g} M")

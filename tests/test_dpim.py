@@ -262,7 +262,8 @@ def test_callers_solvers_and_shared_factorisations():
     recursion's ~10 levels); each shift is factorised once for all orders (N + 1 shifts: m = 0..N,
     m = 1 bordered)."""
     from stepnf.deflation import DeflatedSolver
-    from stepnf.linalg import factorize, shifted_factorization
+    from stepnf.linalg import factorize
+    from stepnf.shifted import ShiftedFactorizer
 
     from systems import full_symmetrize
 
@@ -282,7 +283,7 @@ def test_callers_solvers_and_shared_factorisations():
 
     def factory(sigma, label):
         made.append(sigma)
-        return shifted_factorization(Ks, Ms, sigma, label=label)
+        return ShiftedFactorizer(Ks, Ms).factorizer(sigma, label)
 
     F0 = factorize((Ks + Ms).tocsc())
     k = 8  # the modes an eigen-solver would have computed: the 8 lowest elastic ones

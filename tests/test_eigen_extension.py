@@ -27,7 +27,7 @@ import scipy.sparse as sp
 
 from stepnf.counters import Counters
 from stepnf.eigen_extension import shift_invert_modes
-from stepnf.linalg import shifted_factorization
+from stepnf.shifted import ShiftedFactorizer
 from stepnf.modal import ModalBasis, extend_basis, lambda_scale, modal_analysis, rigid_body_fields
 
 RHO = 3.0
@@ -196,7 +196,7 @@ def restart_solves(K, M, first: int, target: int) -> int:
     """Shifted solves of the former scheme: runs of first, max(2k, k + 8), ... modes from scratch until
     one holds ``target`` (no rigid modes), on one factorisation."""
     sigma = -1e-10 * lambda_scale(K, M)
-    fac = shifted_factorization(K, M, sigma, backend="superlu")
+    fac = ShiftedFactorizer(K, M, backend="superlu").factorizer(sigma)
     calls, k = [0], first
     while True:
         shift_invert_modes(K, M, sigma, fac, k, None, calls)
