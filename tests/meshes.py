@@ -1,4 +1,4 @@
-"""Structured test meshes shared by the CalculiX and hostile-input tests."""
+"""Structured test meshes shared by the CalculiX and hostile-input tests, and the FE cap's scene tables."""
 from __future__ import annotations
 
 import numpy as np
@@ -23,3 +23,12 @@ def block_mesh(nx: int, ny: int, nz: int, size=(1.0, 1.0, 0.1), A: np.ndarray | 
     if A is not None:
         pts = pts @ np.asarray(A).T
     return pts, np.array(cells)
+
+
+def cap_model_toml(n_core: int, n_ring: int) -> str:
+    """The ``[model]`` tables of a FEniCSx scene of the paper's kappa = 25 cap (hex27; a = 0.15 m, R = 1.5 m,
+    h = 0.003 m; E = 1.04e11 Pa, nu = 0.3, rho = 4400 kg/m^3) on the O-grid ``n_core`` x ``n_ring``: the
+    FE tests' scenes append their ``[analysis]`` and ``[output]`` tables."""
+    return ('[model]\nsolver = "fenicsx"\nelement = "hex27"\n[model.geometry]\nshape = "spherical_cap"\n'
+            f'a = 0.15\nR = 1.5\nh = 0.003\nn_core = {n_core}\nn_ring = {n_ring}\n'
+            '[model.material]\nE = 1.04e11\nnu = 0.3\nrho = 4400.0\n')

@@ -21,6 +21,7 @@ from stepnf.scene import load_scene
 from stepnf.show import stored_result
 from stepnf.table import format_table
 from stepnf_polynomial import save_system
+from meshes import cap_model_toml
 from systems import random_system
 
 ORDER = 7
@@ -193,21 +194,7 @@ def test_counters_match_a_direct_evaluator(system):
 
 
 # ------------------------------------------------------------------ FEniCSx (3D hex27 cap, 3249 dofs)
-FE_SCENE = """[model]
-solver = "fenicsx"
-element = "hex27"
-[model.geometry]
-shape = "spherical_cap"
-a = 0.15
-R = 1.5
-h = 0.003
-n_core = 6
-n_ring = 2
-[model.material]
-E = 1.04e11
-nu = 0.3
-rho = 4400.0
-[analysis]
+FE_SCENE = cap_model_toml(6, 2) + """[analysis]
 master_modes = ["(2,0)"]
 methods = ["dnf"]
 [analysis.backbone]

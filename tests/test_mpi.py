@@ -30,6 +30,7 @@ from stepnf.scene import load_scene  # noqa: E402
 from stepnf.testing import Tolerances, parametrize_with_checks  # noqa: E402
 from stepnf_fenicsx import FenicsxAdapter  # noqa: E402
 from stepnf_fenicsx.parallel import DistributedFenicsxAdapter  # noqa: E402
+from meshes import cap_model_toml  # noqa: E402
 
 pytestmark = pytest.mark.fenicsx
 
@@ -41,21 +42,7 @@ MPIRUN = shutil.which("mpirun") or shutil.which("mpiexec")
 # a mesh artefact) are avoided on purpose: their mode shapes are ill-conditioned (a rotation of ~1e-6 within
 # the pair from round-off alone), so T of (2,0) differs by ~3e-8 between ANY two eigen-solvers, serial
 # included (measured: SLEPc vs ARPACK on the same matrices, one process).
-SCENE = """\
-[model]
-solver = "fenicsx"
-element = "hex27"
-[model.geometry]
-shape = "spherical_cap"
-a = 0.15
-R = 1.5
-h = 0.003
-n_core = 6
-n_ring = 3
-[model.material]
-E = 1.04e11
-nu = 0.3
-rho = 4400.0
+SCENE = cap_model_toml(6, 3) + """\
 [analysis]
 master_modes = ["(3,0)", "(0,1)", "(0,2)"]
 methods = ["dnf", "md", "smd"]

@@ -19,6 +19,7 @@ import pytest
 from stepnf import verify
 from stepnf.cli import main
 from stepnf_polynomial.adapter import save_system
+from meshes import cap_model_toml
 from test_dpim import two_dof
 
 SCENE = """[model]
@@ -142,21 +143,7 @@ def test_beyond_validity_exit_2_and_failed_orbit_exit_3(tmp_path, capsys, monkey
 
 
 # ------------------------------------------------------------------------- FE (slow)
-CAP = """[model]
-solver = "fenicsx"
-element = "hex27"
-
-[model.geometry]
-shape = "spherical_cap"
-a = 0.15
-R = 1.5
-h = 0.003
-{mesh}
-[model.material]
-E = 1.04e11
-nu = 0.3
-rho = 4400.0
-
+CAP_ANALYSIS = """
 [analysis]
 master_modes = ["(2,0)", "(0,1)"]
 methods = ["dnf"]
@@ -186,7 +173,7 @@ def test_kappa25_cap_against_time_integration(tmp_path):
     from stepnf.scene import load_scene
 
     path = tmp_path / "cap.toml"
-    path.write_text(CAP.format(mesh="n_core = 8\nn_ring = 3\n"))
+    path.write_text(cap_model_toml(8, 3) + CAP_ANALYSIS)
     t0 = time.perf_counter()
     doc = verify.verify_scene(load_scene(path), periods=2, rtol=1e-5, fractions=(0.25, 0.5))
     seconds = time.perf_counter() - t0
