@@ -59,6 +59,7 @@ from .errors import NumericalError
 from .deflation import DeflatedSolver
 from .linalg import Factorization, PseudoInverse, factorize
 from .linearised import Spectrum, qm_T_error
+from .shifted import ShiftedFactorizer
 
 
 @dataclass(frozen=True)
@@ -199,6 +200,8 @@ class FullOrderContext:
     Kpinv: PseudoInverse
     counters: Counters
     backend: str = "auto"
+    #: ``shifted(sigma, label)``: a factorisation of K - sigma M (an adapter's); None: stepnf's own
+    #: :class:`~stepnf.shifted.ShiftedFactorizer`, made here
     shifted: Callable[[float, str], Factorization] | None = None
     #: solves from the computed modes and the eigen-solver's factorisation (no new factorisation)
     deflated: "DeflatedSolver | None" = None
@@ -206,21 +209,25 @@ class FullOrderContext:
     keep_fields: bool = True
     _last: tuple[float, Factorization] | None = None
 
+    def __post_init__(self) -> None:
+        if self.shifted is None:  # stepnf's own: K - sigma M on one pattern shared with K and M
+            self.shifted = ShiftedFactorizer(self.K, self.M, counters=self.counters, backend=self.backend)
+
     def shifted_factorization(self, sigma: float, label: str) -> Factorization:
-        """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free."""
+        """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free.
+
+        With stepnf's :class:`~stepnf.shifted.ShiftedFactorizer` the slot is its ``refactor``: the previous
+        shift's factors are overwritten in place and MUMPS's analysis is kept; an adapter's factorisations
+        are released one by one.
+        """
         if self._last is not None and self._last[0] == sigma:
             return self._last[1]
         refactor = getattr(self.shifted, "refactor", None)
-        if refactor is not None:  # one instance for every shift: the previous one superseded, its analysis kept
+        if refactor is not None:
             fac = refactor(sigma, label)
-            self._last = (sigma, fac)
-            return fac
-        self.release_shifted()  # free the previous factors before making new ones
-        if self.shifted is not None:
-            fac = self.shifted(sigma, label)
         else:
-            A = (sp.csr_matrix(self.K) - sigma * sp.csr_matrix(self.M)).tocsr()
-            fac = factorize(A, counters=self.counters, backend=self.backend, label=label)
+            self.release_shifted()  # free the previous factors before making new ones
+            fac = self.shifted(sigma, label)
         self._last = (sigma, fac)
         return fac
 

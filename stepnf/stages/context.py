@@ -11,7 +11,6 @@ from ..deflation import DeflatedSolver
 from ..evaluators import FullOrderContext
 from ..linalg import Factorization, PseudoInverse, apply_columns
 from ..modal import lambda_scale
-from ..shifted import ShiftedFactorizer
 from .state import RunState
 
 
@@ -64,10 +63,9 @@ def full_order_context(state: RunState) -> FullOrderContext:
 
     Reads ``adapter``, ``scene`` (``deflation``), ``K``, ``M``, ``basis``, ``backend``, ``counters``.
     Built lazily so that a run without full-order methods factorises nothing more. Its ``shifted``
-    factorisations are the adapter's when it has shifted solves, else a
-    :class:`~stepnf.shifted.ShiftedFactorizer` of ``K`` and ``M`` (called: an independent factorisation,
-    for callers that keep several; its ``refactor``: one instance reused for every shift, MUMPS's
-    analysis kept).
+    factorisations are the adapter's when it has shifted solves, else the context's own
+    :class:`~stepnf.shifted.ShiftedFactorizer` (called: an independent factorisation, for callers that
+    keep several; its ``refactor``: one instance reused for every shift, MUMPS's analysis kept).
     """
     if state.context is not None:
         return state.context
@@ -81,10 +79,7 @@ def full_order_context(state: RunState) -> FullOrderContext:
     else:
         Kp = PseudoInverse(state.K, state.M, basis.rigid, counters=counters, backend=state.backend,
                            solver_factory=shift_solver)
-    if shift_solver is not None:
-        shifted = adapter_shifted(shift_solver, state.n, counters)
-    else:  # one pattern for every shift: K - sigma M without sparse sums, copies or symmetry probes
-        shifted = ShiftedFactorizer(state.K, state.M, counters=counters, backend=state.backend)
+    shifted = adapter_shifted(shift_solver, state.n, counters) if shift_solver is not None else None
     state.context = FullOrderContext(state.K, state.M, Kp, counters, state.backend, shifted, deflated,
                                      keep_fields=state.want_fields)
     return state.context
