@@ -18,7 +18,7 @@ Three kinds of shift ``sigma = (m w)^2`` (``w`` the master's angular frequency):
     one factorisation per shift, kept in a dict keyed by the shift and reused
     by every order; made by ``factory(sigma, label)`` (the pipeline's own,
     e.g. ``FullOrderContext.shifted_factorization`` without its one-slot
-    cache, or :meth:`stepnf.shifted.ShiftedFactorizer.factorizer`), or replaced by the
+    cache; by default :meth:`stepnf.shifted.ShiftedFactorizer.factorizer`), or replaced by the
     caller's ``deflated`` solver when the shift is admissible for it.
 
 Every solve and factorisation is counted (``solves``, ``factorizations`` and
@@ -34,6 +34,7 @@ import scipy.sparse as sp
 from .counters import Counters
 from .errors import NumericalError
 from .linalg import Factorization, PseudoInverse, factorize
+from .shifted import ShiftedFactorizer
 
 FactorizationFactory = Callable[[float, str], Factorization]
 Solve = Callable[[np.ndarray], np.ndarray]
@@ -110,11 +111,10 @@ class ShiftedSolves:
         if self.deflated is not None and self.deflated.admissible(sigma):
             d = self.deflated
             return lambda b: d.solve(b, sigma)  # counts its own CG iterations as solves
-        if self.factory is not None:
-            fac = self.factory(sigma, label)
-        else:
-            fac = factorize((self.K - sigma * self.M).tocsr(), counters=self.counters, backend=self.backend,
-                            label=label)
+        if self.factory is None:  # stepnf's own: K - sigma M on one pattern shared with K and M
+            self.factory = ShiftedFactorizer(self.K, self.M, counters=self.counters,
+                                             backend=self.backend).factorizer
+        fac = self.factory(sigma, label)
         self.shifts_factorised.append(sigma)
         self._factors.append(fac)
         return fac.solve
