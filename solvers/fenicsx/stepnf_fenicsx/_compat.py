@@ -277,11 +277,10 @@ def assemble_matrix(compiled) -> sp.csr_matrix:
 
     A = petsc.assemble_matrix(compiled)
     A.assemble()
-    indptr, indices, data = A.getValuesCSR()
+    indptr, indices, data = A.getValuesCSR()  # new arrays, filled row by row: no copy needed
     n = A.getSize()
-    out = sp.csr_matrix((data.copy(), indices.copy(), indptr.copy()), shape=n)
     A.destroy()
-    return out
+    return sp.csr_matrix((data, indices, indptr), shape=n, copy=False)
 
 
 def dof_layout(V) -> tuple[np.ndarray, int]:
