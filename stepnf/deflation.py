@@ -71,18 +71,81 @@ class DeflatedSolver:
         ``b`` is ignored: the pseudo-inverse (sigma = 0, rigid excluded) and
         the bordered modal-derivative system (master and twins excluded).
         """
+        coef = self._modal_coefficients(self.Psi.T @ b, sigma, exclude)
+        return self.Psi @ coef + self._pcg(self._project_rhs(b), sigma)
+
+    def solve_many(self, B: np.ndarray, sigmas: Sequence[float], excludes: Sequence[Sequence[int]]) -> np.ndarray:
+        """``X`` (n, k): column j solves ``(K - sigmas[j] M) x = B[:, j]`` as :meth:`solve` with ``excludes[j]``.
+
+        The k conjugate-gradient runs go in lockstep, so each iteration applies the preconditioner
+        to every unconverged column in one block solve (MUMPS reads its factors once for all of
+        them); each column stops on its own test, that of :meth:`solve`. The result equals k calls
+        of :meth:`solve` up to round-off (sums in another order, the block solve's own rounding).
+        """
+        B = np.asarray(B, dtype=float)
+        k = B.shape[1]
+        if len(sigmas) != k or len(excludes) != k:
+            raise ValueError(f"{k} right-hand sides, {len(sigmas)} shifts and {len(excludes)} exclusion lists")
+        sig = np.asarray(sigmas, dtype=float)
+        coef = np.zeros((len(self.lam), k))
+        C = self.Psi.T @ B
+        for j in range(k):
+            coef[:, j] = self._modal_coefficients(C[:, j], sig[j], excludes[j])
+        return self.Psi @ coef + self._pcg_many(self._project_rhs(B), sig)
+
+    def _modal_coefficients(self, c: np.ndarray, sigma: float, exclude: Sequence[int]) -> np.ndarray:
+        """The computed modes' part of the solution, ``c = Psi^T b`` (:meth:`solve`)."""
         if not self.admissible(sigma, 1.0):
             raise NumericalError(f"deflated solve: shift {sigma:.4g} is not below the computed spectrum "
                                  f"(largest computed eigenvalue {self.lam_next:.4g})")
-        c = self.Psi.T @ b
         den = self.lam - sigma
         keep = np.ones(len(c), dtype=bool)
         keep[list(exclude)] = False
         if np.any(keep & (den == 0)):
             raise NumericalError(f"deflated solve: shift {sigma:.6g} is an eigenvalue of a mode not excluded")
-        coef = np.where(keep, c / np.where(den == 0, 1.0, den), 0.0)
-        x = self.Psi @ coef + self._pcg(self._project_rhs(b), sigma)
-        return x
+        return np.where(keep, c / np.where(den == 0, 1.0, den), 0.0)
+
+    def _pcg_many(self, R0: np.ndarray, sig: np.ndarray) -> np.ndarray:
+        """:meth:`_pcg` for the columns of ``R0`` (shift ``sig[j]`` each), in lockstep."""
+        X = np.zeros_like(R0)
+        R = R0.copy()
+        nb = np.linalg.norm(R0, axis=0)
+        act = np.flatnonzero(nb > 0)
+        if act.size == 0:
+            return X
+        D = np.zeros_like(R0)
+        Z = self._apply_precond(R[:, act])
+        D[:, act] = Z
+        rz = np.zeros(R0.shape[1])
+        rz[act] = np.einsum("ij,ij->j", R[:, act], Z)
+        for it in range(1, self.maxiter + 1):
+            Da = D[:, act]
+            AD = self._project_rhs(self.K @ Da - (self.M @ Da) * sig[act])
+            dAd = np.einsum("ij,ij->j", Da, AD)
+            if np.any(dAd <= 0):
+                raise NumericalError("deflated solve: K - sigma M is not positive on the uncomputed modes")
+            alpha = rz[act] / dAd
+            X[:, act] += Da * alpha
+            R[:, act] -= AD * alpha
+            if self.counters is not None:
+                self.counters.linear_solves += act.size
+            done = np.linalg.norm(R[:, act], axis=0) <= self.rtol * nb[act]
+            self.iterations.extend([it] * int(done.sum()))
+            act = act[~done]
+            if act.size == 0:
+                return X
+            Z = self._apply_precond(R[:, act])
+            rz_new = np.einsum("ij,ij->j", R[:, act], Z)
+            D[:, act] = Z + D[:, act] * (rz_new / rz[act])
+            rz[act] = rz_new
+        worst = float(np.max(np.linalg.norm(R[:, act], axis=0) / nb[act]))
+        raise NumericalError(f"deflated solve: CG did not converge in {self.maxiter} iterations "
+                             f"(residual {worst:.1e})")
+
+    def _apply_precond(self, R: np.ndarray) -> np.ndarray:
+        """``P (K - sigma_0 M)^-1 P^T`` on the columns of ``R``: one block solve."""
+        Z = self.precond(self._project_rhs(R))
+        return self._project(Z.reshape(R.shape))
 
     def _pcg(self, r0: np.ndarray, sigma: float) -> np.ndarray:
         A = lambda v: self.K @ v - sigma * (self.M @ v)  # noqa: E731

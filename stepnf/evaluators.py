@@ -238,20 +238,37 @@ class FullOrderContext:
         self._last = None
 
 
+def dnf_uses_factorisation(omega_p: float, ctx: FullOrderContext) -> bool:
+    """True when :func:`dnf` of a master at ``omega_p`` (rad/s) factorises ``K - 4 w^2 M`` (in the
+    context's one slot, :meth:`FullOrderContext.shifted_factorization`) instead of a deflated solve."""
+    return not (ctx.deflated is not None and ctx.deflated.admissible(4 * omega_p ** 2))
+
+
+def dnf_shifted_rhs(Gv: np.ndarray, ctx: FullOrderContext) -> np.ndarray:
+    """The right-hand side of DNF's ``(K - 4 w^2 M) z = b``: ``Gv`` without its rigid-body part."""
+    R = ctx.Kpinv.R
+    return Gv - ctx.M @ (R @ (R.T @ Gv)) if R.shape[1] else Gv
+
+
 def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
-        *, dGv: np.ndarray | None = None, dh: float = 0.0) -> tuple[MethodResult, np.ndarray]:
+        *, dGv: np.ndarray | None = None, dh: float = 0.0, y: np.ndarray | None = None,
+        z: np.ndarray | None = None) -> tuple[MethodResult, np.ndarray]:
     """Direct normal form, full order (paper Eq. 9-10): two linear solves.
 
-    Returns the result and ``y = K^+ Gv`` (reused by full-order SMD); the result's
-    ``fields`` hold ``a_bar`` and ``w2_b_bar = w^2 b_bar`` (module docstring). With
+    Returns the result and ``y = K^+ Gv`` (reused by full-order SMD); ``y`` and ``z`` (the solution
+    of ``(K - 4 w^2 M) z = b``, :func:`dnf_shifted_rhs`) given are not solved again. The
+    result's ``fields`` hold ``a_bar`` and ``w2_b_bar = w^2 b_bar`` (module docstring). With
     ``dGv``, ``dh`` (differences at the STEP check amplitude) ``T_error`` is
     the first-order change of T: ``dA = 4 dGv^T a_bar``, ``dB = 4 dGv^T b_bar``.
     """
     w2 = omega_p ** 2
-    y = ctx.Kpinv(Gv)
-    b = Gv - ctx.M @ (ctx.Kpinv.R @ (ctx.Kpinv.R.T @ Gv)) if ctx.Kpinv.R.shape[1] else Gv
+    if y is None:
+        y = ctx.Kpinv(Gv)
+    b = dnf_shifted_rhs(Gv, ctx)
     try:
-        if ctx.deflated is not None and ctx.deflated.admissible(4 * w2):
+        if z is not None:
+            pass
+        elif not dnf_uses_factorisation(omega_p, ctx):
             z = ctx.deflated.solve(b, 4 * w2)  # 2 w_p inside the computed spectrum: no factorisation
         else:
             Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
@@ -300,7 +317,7 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
             tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None,
             exclude: Sequence[int] | None = None, twin_index: Sequence[int] | None = None,
             labels: Sequence[Any] | None = None, dGv: np.ndarray | None = None, dh: float = 0.0,
-            spectrum: Spectrum | None = None) -> MethodResult:
+            spectrum: Spectrum | None = None, theta: np.ndarray | None = None) -> MethodResult:
     """Modal-derivative quadratic manifold, full order.
 
     ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
@@ -312,38 +329,54 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
     a factorisation. With ``dGv``, ``dh`` (differences at the STEP check
     amplitude) and ``spectrum`` (the computed modes, needed: the resolvent
     ``(K - w^2 M)^-1`` is indefinite) ``T_error`` is the first-order change
-    of T, without a solve (:func:`~stepnf.linearised.qm_T_error`); none when T diverges.
+    of T, without a solve (:func:`~stepnf.linearised.qm_T_error`); none when T diverges. ``theta``
+    given (the deflated solve, done beforehand): not solved again.
     """
     w2 = omega_p ** 2
     D = phi[:, None] if twins is None or len(twins) == 0 else np.column_stack([phi, twins])
-    res, theta, forms = _md_theta_result(p, phi, omega_p, Gv, h, ctx, D, g, tol, floor, exclude, twin_index, labels)
+    res, theta, forms = _md_theta_result(p, phi, omega_p, Gv, h, ctx, D, g, tol, floor, exclude, twin_index, labels,
+                                         theta)
     if dGv is not None and theta is not None:
         res.T_error = qm_T_error(res, forms, phi, omega_p, theta, w2, D, dGv, dh, spectrum)
     return res
 
 
+def md_twin_flag(p: int, phi: np.ndarray, Gv: np.ndarray, D: np.ndarray, g: np.ndarray | None, tol: Tolerances,
+                 floor: np.ndarray | float | None, twin_index: Sequence[int] | None,
+                 labels: Sequence[Any] | None) -> dict | None:
+    """MD's 1:1 flag when a degenerate twin of ``p`` (columns 1: of ``D = [phi_p, twins]``) couples
+    (``|phi_t^T Gv|`` above the coupling floor): the modal derivative diverges. None otherwise."""
+    if D.shape[1] <= 1:
+        return None
+    gt = D[:, 1:].T @ Gv
+    if floor is None:
+        floor = tol.coupling * max(np.abs(g).max() if g is not None and g.size else abs(float(phi @ Gv)), 1e-300)
+    if not np.any(np.abs(gt) > (np.max(floor) if np.ndim(floor) else floor)):
+        return None
+    j = int(np.argmax(np.abs(gt)))
+    s_idx = None if twin_index is None else int(twin_index[j])
+    lab = None if s_idx is None or labels is None else labels[s_idx]
+    name = "a degenerate twin" if s_idx is None else f"mode {s_idx}" + ("" if lab is None else f" {lab}")
+    return {"kind": "internal_resonance_1_1", "mode": s_idx, "label": lab, "ratio": 1.0,
+            "message": f"MD: {name}, a degenerate twin of master mode {p}, couples "
+                       f"(|g| = {np.abs(gt).max():.3e}): the modal derivative diverges"}
+
+
 def _md_theta_result(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
                      D: np.ndarray, g: np.ndarray | None, tol: Tolerances, floor: np.ndarray | float | None,
                      exclude: Sequence[int] | None, twin_index: Sequence[int] | None,
-                     labels: Sequence[Any] | None) -> tuple[MethodResult, np.ndarray | None, tuple | None]:
+                     labels: Sequence[Any] | None, theta: np.ndarray | None = None
+                     ) -> tuple[MethodResult, np.ndarray | None, tuple | None]:
     """:func:`md_full`'s result (T, C, flags, fields), theta and its forms (None when MD diverges)."""
     w2 = omega_p ** 2
     flags: list[dict] = []
-    if D.shape[1] > 1:
-        gt = D[:, 1:].T @ Gv
-        if floor is None:
-            floor = tol.coupling * max(np.abs(g).max() if g is not None and g.size else abs(float(phi @ Gv)), 1e-300)
-        if np.any(np.abs(gt) > (np.max(floor) if np.ndim(floor) else floor)):
-            j = int(np.argmax(np.abs(gt)))
-            s_idx = None if twin_index is None else int(twin_index[j])
-            lab = None if s_idx is None or labels is None else labels[s_idx]
-            name = "a degenerate twin" if s_idx is None else f"mode {s_idx}" + ("" if lab is None else f" {lab}")
-            flags.append({"kind": "internal_resonance_1_1", "mode": s_idx, "label": lab, "ratio": 1.0,
-                          "message": f"MD: {name}, a degenerate twin of master mode {p}, couples "
-                                     f"(|g| = {np.abs(gt).max():.3e}): the modal derivative diverges"})
-            return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
-                                flags, order="full"), None, None
-    if ctx.deflated is not None and exclude is not None:
+    twin = md_twin_flag(p, phi, Gv, D, g, tol, floor, twin_index, labels)
+    if twin is not None:
+        return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
+                            [twin], order="full"), None, None
+    if theta is not None:
+        pass
+    elif ctx.deflated is not None and exclude is not None:
         theta = ctx.deflated.solve(-2.0 * Gv, w2, exclude=exclude)
     else:
         MD = ctx.M @ D

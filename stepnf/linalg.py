@@ -226,16 +226,40 @@ def mumps_setup(ksp, label: str) -> None:
 
 
 def ksp_solve_function(ksp, xv, bv, n: int) -> Callable[[np.ndarray], np.ndarray]:
-    """``solve(b)`` for (n,) or (n, k) ``b`` with a set-up KSP, through its work vectors ``xv``, ``bv``."""
+    """``solve(b)`` for (n,) or (n, k) ``b`` with a set-up direct-solve KSP (work vectors ``xv``, ``bv``).
+
+    Several columns go to MUMPS in one call (:func:`factor_block_solve`), not one by one.
+    """
     def solve(b: np.ndarray) -> np.ndarray:
         cols = b.reshape(n, -1)
-        out = np.empty_like(cols)
-        for j in range(cols.shape[1]):
-            bv.setArray(cols[:, j])
-            ksp.solve(bv, xv)
-            out[:, j] = xv.getArray()
-        return out.reshape(b.shape)
+        if cols.shape[1] > 1:
+            return factor_block_solve(ksp.getPC().getFactorMatrix(), cols).reshape(b.shape)
+        bv.setArray(cols[:, 0])
+        ksp.solve(bv, xv)
+        return xv.getArray().copy().reshape(b.shape)
     return solve
+
+
+def factor_block_solve(F, B: np.ndarray) -> np.ndarray:
+    """``X`` (n, k) with ``A X = B`` for the factored matrix ``F`` of ``A``: one ``MatMatSolve``.
+
+    MUMPS's forward and backward substitutions then read the factors once for all k columns
+    (dense kernels): measured on the 112k-dof cap (one thread) 0.14 s for 6 columns and 0.25 s
+    for 16, against 0.08 s per column one by one. The columns agree with one-by-one solves to
+    round-off (2e-14 relative measured), not bit for bit.
+    """
+    from petsc4py import PETSc
+
+    n, k = B.shape
+    Bm = PETSc.Mat().createDense((n, k), array=np.asfortranarray(B, dtype=float), comm=PETSc.COMM_SELF)
+    Xm = PETSc.Mat().createDense((n, k), comm=PETSc.COMM_SELF)
+    Xm.setUp()
+    try:
+        F.matSolve(Bm, Xm)
+        return np.array(Xm.getDenseArray(), copy=True)
+    finally:
+        Bm.destroy()
+        Xm.destroy()
 
 
 def symmetry_defect(A: sp.spmatrix | np.ndarray, *, seed: int = 0, probes: int = 2) -> float:

@@ -42,7 +42,8 @@ class DeflatedPinv:
 
 
 def deflation_preconditioner(state: RunState, shift_solver: Callable | None) -> Callable | None:
-    """A solve with K (or K slightly shifted) that a :class:`DeflatedSolver` can use, or None.
+    """A solve with K (or K slightly shifted) that a :class:`DeflatedSolver` can use, or None; it takes
+    (n,) or (n, k) right-hand sides (the eigen-solver's factors solve k columns in one call).
 
     The eigen-solver's factors when stepnf factorised (no extra factorisation); else, for a solver
     with its own shifted solves and a partial spectrum, ONE factorisation by the solver (e.g.
@@ -54,7 +55,8 @@ def deflation_preconditioner(state: RunState, shift_solver: Callable | None) -> 
         F0 = basis.factorization
         return lambda b: F0.solve(b, count=False)
     if shift_solver is not None and scene.deflation and basis.n_elastic and not basis.complete:
-        return timed_factorisation(state.counters, lambda: shift_solver(-1e-10 * lambda_scale(state.K, state.M)))
+        raw = timed_factorisation(state.counters, lambda: shift_solver(-1e-10 * lambda_scale(state.K, state.M)))
+        return lambda b: apply_columns(raw, b)  # the adapter solves one right-hand side at a time
     return None
 
 

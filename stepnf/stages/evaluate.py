@@ -1,17 +1,29 @@
-"""Stage ``evaluators``: every method of every master mode, with its diagnostics."""
+"""Stage ``evaluators``: every method of every master mode, with its diagnostics.
+
+The deflated solves of all masters run first, together (:mod:`stepnf.stages.prefetch`).
+
+Memory: the solves that need a new factorisation (DNF's ``K - 4 w_p^2 M`` of a master whose
+``2 w_p`` lies above what the computed spectrum solves) run after every other method of every
+master. The other full-order solves are preconditioned by the eigen-solver's factorisation; once
+they are done, and when no later stage solves with it (no ``[analysis.backbone]``), that
+factorisation is freed before the new one is made, so the two never live together (at a million
+dofs each holds ~6 GB).
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from ..diagnostics import overflow_is_numerical
 from ..gamma import gamma_scale
-from .master import master_data, mode_record
-from .methods import run_method
+from .context import full_order_context
+from .master import MasterData, master_data, mode_record
+from .methods import factorises, run_method
+from .prefetch import prefetch_deflated
 from .state import RunState
 
 
 def evaluators_stage(state: RunState) -> None:
-    """Evaluate the scene's methods for each master mode, in the scene's order.
+    """Evaluate the scene's methods for each master mode, in the scene's order (results too).
 
     Reads ``scene``, ``adapter``, ``X``, ``dirs``, ``basis``, ``labels``, ``masters``, ``methods``,
     ``steps``, ``full``, ``policy``, ``M``. Writes ``scales`` (shell scales, or None), ``gscale`` and
@@ -19,18 +31,50 @@ def evaluators_stage(state: RunState) -> None:
     :class:`~stepnf.results.ModeResult` per master), ``arrays`` (``Gv_<p>`` = G(phi_p, phi_p), empty
     without a targeted STEP) and, when a full-order method runs, ``context``. A floating-point
     overflow becomes a :class:`~stepnf.errors.NumericalError` naming the master and the method.
+    The methods that factorise run last (module docstring); their place in each mode's results is kept.
     """
     state.scales = state.adapter.shell_scales()
     state.gscale, state.no_gamma = gamma_scale(state.scene, state.adapter, state.X, state.dirs)
     where = {"stage": "evaluators"}
+    deferred: list[tuple[MasterData, str, str]] = []
     with overflow_is_numerical(where, state.steps), \
             state.progress.stage("evaluators", "normal form and modal derivatives"):
+        datas = []
         for p in state.masters:
             where.update(master=int(p), method="(diagnostics)")
-            d = master_data(state, p)
+            datas.append(master_data(state, p))
+        where.pop("master", None)
+        where.update(method="(deflated solves of every master)")
+        prefetch_deflated(state, datas)
+        for d in datas:
+            p = d.p
+            where.pop("method", None)
+            where.update(master=int(p), method="(diagnostics)")
             rec = mode_record(state, d)
             for name, ev in state.methods.items():
                 where.update(master=int(p), method=name)
+                if factorises(state, d, ev):
+                    if d.y is None:
+                        d.y = full_order_context(state).Kpinv(d.st.Gv)  # K^+ Gv now: SMD reuses it
+                    rec.methods[name] = None  # its place in the results, filled below
+                    deferred.append((d, name, ev))
+                    continue
                 rec.methods[name] = run_method(state, d, name, ev)
             state.modes.append(rec)
             state.arrays[f"Gv_{p}"] = d.st.Gv if d.st is not None else np.zeros(0)
+        if deferred:
+            free_eigen_factorisation(state)
+        records = {rec.index: rec for rec in state.modes}
+        for d, name, ev in deferred:
+            where.update(master=int(d.p), method=name)
+            records[d.p].methods[name] = run_method(state, d, name, ev)
+
+
+def free_eigen_factorisation(state: RunState) -> None:
+    """Free the eigen-solver's factorisation when no later stage solves with it (no backbone).
+
+    It preconditions the deflated solves (:func:`~stepnf.stages.context.deflation_preconditioner`);
+    a solve after this raises ``RuntimeError`` (never wrong numbers)."""
+    fac = state.basis.factorization
+    if fac is not None and state.scene.backbone is None:
+        fac.release()

@@ -19,7 +19,9 @@ class MasterData:
     sums, from the full STEP when it covers ``p``, else from the targeted STEP; ``g_chk``, ``h_chk``:
     the same at the check amplitude (None without one). ``g_all``: g^s_pp from the targeted STEP
     where there is one. ``floor``: the coupling below which a g is STEP noise (None without targeted
-    STEP). ``y``: the DNF solution, reused by ``smd_full`` of the same master.
+    STEP). ``y``: ``K^+ Gv``, DNF's first solve, reused by ``smd_full`` of the same master; ``z``: DNF's
+    ``(K - 4 w_p^2 M)^-1 b``; ``theta``: MD's deflated solve. ``y``, ``z``, ``theta`` are None until
+    solved (:mod:`stepnf.stages.prefetch` solves them for every master at once where it can).
     """
 
     p: int
@@ -34,6 +36,8 @@ class MasterData:
     floor: np.ndarray | float | None
     w_max: float | None = None
     y: np.ndarray | None = None
+    z: np.ndarray | None = None
+    theta: np.ndarray | None = None
 
 
 def master_data(state: RunState, p: int) -> MasterData:

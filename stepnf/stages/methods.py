@@ -5,8 +5,8 @@ import numpy as np
 
 from ..backbone import MethodResult
 from ..diagnostics import captured_share, floor_scale, merge_flags, one_two_flags, t_error, truncation_flags
-from ..evaluators import (Tolerances, dnf, md_full, md_modal, nf_modal, resonance_flags, retained_set, smd_full,
-                          smd_modal)
+from ..evaluators import (Tolerances, dnf, dnf_uses_factorisation, md_full, md_modal, nf_modal, resonance_flags,
+                          retained_set, smd_full, smd_modal)
 from ..linearised import Spectrum
 from .context import full_order_context
 from .master import MasterData
@@ -39,14 +39,21 @@ def run_modal(state: RunState, d: MasterData, ev: str) -> MethodResult:
 
 
 def run_dnf(state: RunState, d: MasterData) -> MethodResult:
-    """Direct normal form on the whole mesh, flagged for 1:2 resonances; keeps its solution in ``d.y``."""
+    """Direct normal form on the whole mesh, flagged for 1:2 resonances; keeps ``y = K^+ Gv`` in ``d.y``
+    (given there already: not solved again)."""
     p, st, omega = d.p, d.st, state.omega
     dG, dh = check_differences(st)
-    r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh)
+    r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh, y=d.y, z=d.z)
     r.flags = merge_flags(r.flags, one_two_flags(p, omega[p], st, state.basis, full_order_context(state),
                                                  floor_scale(st, state.M, state.tol), state.tol, state.adapter,
                                                  state.counters))
     return r
+
+
+def factorises(state: RunState, d: MasterData, ev: str) -> bool:
+    """True when evaluator ``ev`` of master ``d.p`` needs a new factorisation: DNF with ``4 w_p^2``
+    outside what the computed spectrum can solve (:func:`~stepnf.evaluators.dnf_uses_factorisation`)."""
+    return ev == "dnf" and dnf_uses_factorisation(state.omega[d.p], full_order_context(state))
 
 
 def computed_spectrum(state: RunState) -> Spectrum:
@@ -89,7 +96,7 @@ def run_md_full(state: RunState, d: MasterData) -> MethodResult:
     dG, dh = check_differences(st)
     r = md_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), tw, g=d.g_all, tol=state.tol,
                 floor=d.floor, exclude=[nr + p] + [nr + t for t in twins], twin_index=twins, labels=state.labels,
-                dGv=dG, dh=dh, spectrum=computed_spectrum(state) if dG is not None else None)
+                dGv=dG, dh=dh, spectrum=computed_spectrum(state) if dG is not None else None, theta=d.theta)
     r.flags += resonance_flags("md", p, omega, d.g_all, [s for s in range(state.m) if s not in twins], 1.0,
                                state.tol, state.labels, d.floor)
     return r
