@@ -137,7 +137,8 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
          R: np.ndarray | None = None, spectrum: np.ndarray | None = None, master: int | None = None,
          twins: np.ndarray | None = None, twin_index: Sequence[int] | None = None,
          factory: FactorizationFactory | None = None, pinv: Solve | None = None, resonant: Solve | None = None,
-         deflated: Any | None = None, backend: str = "auto", counters: Counters | None = None,
+         deflated: Any | None = None, resonant_exclude: Sequence[int] | None = None,
+         backend: str = "auto", counters: Counters | None = None,
          resonance_tolerance: float = 0.05, twin_tolerance: float = 1e-6, coupling: float = 1e-5,
          progress: Callable[[int], None] | None = None) -> DPIMResult:
     """The DPIM of master mode ``phi`` (M-normalised, angular frequency ``omega``) to odd ``order``.
@@ -152,7 +153,9 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
     companions (``twin_index`` their indices), handled when the master does
     not drive them (cosine of their coupling <= ``coupling``), refused
     otherwise. ``factory``/``pinv``/``resonant``/``deflated``: solvers the
-    caller provides (:class:`stepnf.dpim_solvers.ShiftedSolves`).
+    caller provides (:class:`stepnf.dpim_solvers.ShiftedSolves`; ``resonant_exclude``: the columns of
+    ``deflated`` left out of the resonant solve, the master and its twins). The solves of one order
+    go together (:meth:`~stepnf.dpim_solvers.ShiftedSolves.solve_many`).
     """
     order = int(order)
     if order < 3 or order % 2 == 0:
@@ -165,7 +168,7 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
                             resonance_tolerance, twin_tolerance)
     solves = ShiftedSolves(K, M, phi, omega, R=R, factory=factory, pinv=pinv, resonant=resonant,
                            deflated=deflated, counters=counters, backend=backend, master=master,
-                           twins=twins, twin_index=twin_index, coupling=coupling)
+                           twins=twins, twin_index=twin_index, coupling=coupling, resonant_exclude=resonant_exclude)
     pol = Polariser(forces, K, probe)
     Msp = sp.csr_matrix(M) if sp.issparse(M) else np.asarray(M)
     Y: dict[tuple[int, int], np.ndarray] = {(1, 1): phi.copy()}
@@ -178,17 +181,21 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
         before = (pol.stats.force_evaluations, pol.stats.calls, counters.linear_solves, counters.factorizations,
                   len(solves.shifts_factorised))
         ms, F = nonlinear_forcing(pol, Y, p, n)
+        rhs = []
         for j, m in enumerate(ms):
             if m == 1:  # resonant: solvability gives S_k, then c_k
                 k = (p - 1) // 2
                 Sk = float(phi @ F[j]) - sum(S[i - 1] * float(phi @ MY[(p - 2 * i, 1)]) for i in range(1, k))
                 S.append(Sk)
                 c.append((Sk - sum(c[i - 1] * c[k - i - 1] for i in range(1, k))) / (2.0 * omega))
-            rhs = -F[j]
+            b = -F[j]
             for k in range(1, (p - m) // 2 + 1 if m else 1):  # m = 0: no inertia term
-                rhs = rhs + (m * m) * S[k - 1] * MY[(p - 2 * k, m)]
-            Y[(p, m)] = solves.solve(m, rhs)
-            MY[(p, m)] = Msp @ Y[(p, m)]
+                b = b + (m * m) * S[k - 1] * MY[(p - 2 * k, m)]
+            rhs.append(b)
+        # the harmonics of one order are independent (their right-hand sides use lower orders only)
+        for m, y in zip(ms, solves.solve_many(list(zip(ms, rhs)))):
+            Y[(p, m)] = y
+            MY[(p, m)] = Msp @ y
         counts.append({"order": p, "force_evaluations": pol.stats.force_evaluations - before[0],
                        "force_calls": pol.stats.calls - before[1],
                        "linear_solves": counters.linear_solves - before[2],

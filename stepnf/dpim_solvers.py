@@ -11,9 +11,9 @@ Three kinds of shift ``sigma = (m w)^2`` (``w`` the master's angular frequency):
     ``K - w^2 M`` is singular (phi_p in its kernel). The solution with
     ``phi_p^T M y = 0`` of ``(K - w^2 M) y = b`` (b with ``phi_p^T b = 0``)
     comes from the bordered system ``[[K - w^2 M, M phi], [phi^T M, 0]]``, or
-    from the caller's ``resonant`` solve (e.g.
-    :meth:`stepnf.deflation.DeflatedSolver.solve` with the master and its
-    twins excluded). A singular bordered matrix means a degenerate twin.
+    from the caller's ``resonant`` solve, or from the ``deflated`` solver with the
+    columns ``resonant_exclude`` (the master and its twins) left out. A singular
+    bordered matrix means a degenerate twin.
 ``m >= 2``
     one factorisation per shift, kept in a dict keyed by the shift and reused
     by every order; made by ``factory(sigma, label)`` (the pipeline's own,
@@ -23,10 +23,15 @@ Three kinds of shift ``sigma = (m w)^2`` (``w`` the master's angular frequency):
 
 Every solve and factorisation is counted (``solves``, ``factorizations`` and
 the shifts used), so the caller can report counts per order.
+
+:meth:`ShiftedSolves.solve_many` takes the independent solves of one order together: those the
+``deflated`` solver does (``m = 0`` without a ``pinv``, ``m = 1`` with ``resonant_exclude``, any
+admissible shift) run as one lockstep CG with block solves
+(:meth:`stepnf.deflation.DeflatedSolver.solve_many`), the others one by one.
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -53,7 +58,8 @@ class ShiftedSolves:
                  factory: FactorizationFactory | None = None, pinv: Solve | None = None,
                  resonant: Solve | None = None, deflated: Any | None = None,
                  counters: Counters | None = None, backend: str = "auto", master: int | None = None,
-                 twins: np.ndarray | None = None, twin_index: Any = None, coupling: float = 1e-5):
+                 twins: np.ndarray | None = None, twin_index: Any = None, coupling: float = 1e-5,
+                 resonant_exclude: Sequence[int] | None = None):
         self.K = sp.csr_matrix(K)
         self.M = sp.csr_matrix(M)
         self.phi = np.asarray(phi, dtype=float)
@@ -66,6 +72,7 @@ class ShiftedSolves:
         self.master = master
         self._pinv = pinv
         self._resonant = resonant
+        self.resonant_exclude = None if resonant_exclude is None else tuple(int(i) for i in resonant_exclude)
         self.twins = np.zeros((len(phi), 0)) if twins is None else np.asarray(twins, dtype=float).reshape(len(phi), -1)
         self.twin_index = list(range(self.twins.shape[1])) if twin_index is None else list(twin_index)
         self.coupling = float(coupling)
@@ -85,6 +92,26 @@ class ShiftedSolves:
             solver = self._make(m, sigma)
             self._cache[sigma] = solver
         return solver(b)
+
+    def solve_many(self, items: Sequence[tuple[int, np.ndarray]]) -> list[np.ndarray]:
+        """``[solve(m, b) for m, b in items]``, the deflated ones in one lockstep run (module docstring), the
+        others one by one, those whose factorisation the ``factory`` holds now (its ``holds(sigma)``) first."""
+        out: list[np.ndarray | None] = [None] * len(items)
+        plans = [(i, self._deflated_plan(abs(int(m)), b)) for i, (m, b) in enumerate(items)]
+        plans = [(i, plan) for i, plan in plans if plan is not None]
+        if len(plans) > 1:
+            X = self.deflated.solve_many(np.column_stack([plan[0] for _, plan in plans]),
+                                         [plan[1] for _, plan in plans], [plan[2] for _, plan in plans])
+            for j, (i, plan) in enumerate(plans):
+                out[i] = plan[3](X[:, j])
+        held = getattr(self.factory, "holds", None)  # a shift whose factorisation is alive goes first
+        rest = [i for i, y in enumerate(out) if y is None]
+        if held is not None:
+            ms = {i: abs(int(items[i][0])) for i in rest}
+            rest.sort(key=lambda i: not (ms[i] >= 2 and held((ms[i] * self.omega) ** 2)))
+        for i in rest:
+            out[i] = self.solve(*items[i])
+        return out
 
     def release(self) -> None:
         """Free every kept factorisation (``release()`` of those that have one: a MUMPS factorisation keeps
@@ -119,15 +146,42 @@ class ShiftedSolves:
         self._factors.append(fac)
         return fac.solve
 
+    def _deflated_plan(self, m: int, b: np.ndarray) -> tuple[np.ndarray, float, tuple[int, ...], Callable] | None:
+        """``(rhs, sigma, exclude, finish)`` when the deflated solver does ``solve(m, b)``: its answer is
+        ``finish(deflated.solve(rhs, sigma, exclude))``; None when it does not."""
+        d = self.deflated
+        if d is None:
+            return None
+        if m == 0:
+            return (b, 0.0, tuple(range(d.n_rigid)), _same) if self._pinv is None else None
+        if m == 1:
+            if not self._resonant_deflated():
+                return None
+            DMD = self._resonant_basis()
+            return (self._resonant_rhs(b, DMD), self.omega ** 2, self.resonant_exclude,
+                    lambda y: _m_orthogonal(y, DMD))
+        sigma = (m * self.omega) ** 2
+        return (b, sigma, (), _same) if d.admissible(sigma) else None
+
     def _count(self, f: Solve) -> Solve:
         def g(b):
             self.counters.linear_solves += 1
             return f(b)
         return g
 
-    def _solve_resonant(self, b: np.ndarray) -> np.ndarray:
+    def _resonant_deflated(self) -> bool:
+        """Whether the resonant solve is the deflated solver's (``resonant_exclude`` given, no ``resonant``)."""
+        return (self._resonant is None and self.resonant_exclude is not None and self.deflated is not None
+                and self.deflated.admissible(self.omega ** 2))
+
+    def _resonant_basis(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(D, M D)``, ``D = [phi, twins]``."""
         D = np.column_stack([self.phi, self.twins])
-        MD = self.M @ D
+        return D, self.M @ D
+
+    def _resonant_rhs(self, b: np.ndarray, DMD: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """``b`` without its part along phi and the twins; a twin that ``b`` drives is refused."""
+        D, MD = DMD
         who = "the master mode" if self.master is None else f"master mode {self.master}"
         if self.twins.shape[1]:  # a twin that the master drives makes the single-mode manifold impossible
             cos = np.abs(self.twins.T @ b) / max(np.linalg.norm(b) * 1.0, 1e-300)
@@ -139,11 +193,18 @@ class ShiftedSolves:
                     f"internal resonance), is driven by the master's nonlinear forces (coupling {cos[j]:.2e} > "
                     f"{self.coupling:.1e}): a single-mode invariant manifold does not exist; a two-mode "
                     "parametrisation is needed")
-        b = b - MD @ (D.T @ b)  # phi's part is the solvability condition (met up to round-off); twins' checked
+        return b - MD @ (D.T @ b)  # phi's part is the solvability condition (met up to round-off); twins' checked
+
+    def _solve_resonant(self, b: np.ndarray) -> np.ndarray:
+        DMD = self._resonant_basis()
+        D, MD = DMD
+        who = "the master mode" if self.master is None else f"master mode {self.master}"
+        b = self._resonant_rhs(b, DMD)
         if self._resonant is not None:
             self.counters.linear_solves += 1
-            y = np.asarray(self._resonant(b), dtype=float)
-            return y - D @ (MD.T @ y)
+            return _m_orthogonal(np.asarray(self._resonant(b), dtype=float), DMD)
+        if self._resonant_deflated():  # it counts its own CG iterations
+            return _m_orthogonal(self.deflated.solve(b, self.omega ** 2, exclude=self.resonant_exclude), DMD)
         solver = self._cache.get(-1.0)
         if solver is None:
             w2 = self.omega ** 2
@@ -163,3 +224,13 @@ class ShiftedSolves:
             solver = lambda rhs: fac.solve(np.concatenate([rhs, np.zeros(k)]))[:n]  # noqa: E731
             self._cache[-1.0] = solver
         return solver(b)
+
+
+def _same(y: np.ndarray) -> np.ndarray:
+    return y
+
+
+def _m_orthogonal(y: np.ndarray, DMD: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """``y`` without its part along ``D`` (M-orthonormal columns), ``DMD = (D, M D)``."""
+    D, MD = DMD
+    return y - D @ (MD.T @ y)

@@ -59,7 +59,7 @@ from .errors import NumericalError
 from .deflation import DeflatedSolver
 from .linalg import Factorization, PseudoInverse, factorize
 from .linearised import Spectrum, qm_T_error
-from .shifted import ShiftedFactorizer
+from .shifted import ShiftedFactorizer, Slot
 
 
 @dataclass(frozen=True)
@@ -207,11 +207,14 @@ class FullOrderContext:
     deflated: "DeflatedSolver | None" = None
     #: keep the displacement vectors in ``MethodResult.fields`` (see the module docstring)
     keep_fields: bool = True
-    _last: tuple[float, Factorization] | None = None
+    #: the one live factorisation of :meth:`shifted_factorization` (made in ``__post_init__``)
+    slot: Slot | None = None
 
     def __post_init__(self) -> None:
         if self.shifted is None:  # stepnf's own: K - sigma M on one pattern shared with K and M
             self.shifted = ShiftedFactorizer(self.K, self.M, counters=self.counters, backend=self.backend)
+        refactor = getattr(self.shifted, "refactor", None)
+        self.slot = Slot(refactor or self.shifted, refactor=refactor is not None)
 
     def shifted_factorization(self, sigma: float, label: str) -> Factorization:
         """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free.
@@ -220,22 +223,15 @@ class FullOrderContext:
         shift's factors are overwritten in place and MUMPS's analysis is kept; an adapter's factorisations
         are released one by one.
         """
-        if self._last is not None and self._last[0] == sigma:
-            return self._last[1]
-        refactor = getattr(self.shifted, "refactor", None)
-        if refactor is not None:
-            fac = refactor(sigma, label)
-        else:
-            self.release_shifted()  # free the previous factors before making new ones
-            fac = self.shifted(sigma, label)
-        self._last = (sigma, fac)
-        return fac
+        return self.slot.factorization(sigma, label)
+
+    def holds(self, sigma: float) -> bool:
+        """Whether :meth:`shifted_factorization` of ``sigma`` is free now (the slot holds it)."""
+        return self.slot.holds(sigma)
 
     def release_shifted(self) -> None:
         """Free the kept factorisation of :meth:`shifted_factorization` now (none is kept afterwards)."""
-        if self._last is not None:
-            self._last[1].release()
-        self._last = None
+        self.slot.release()
 
 
 def dnf_uses_factorisation(omega_p: float, ctx: FullOrderContext) -> bool:

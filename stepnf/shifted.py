@@ -21,6 +21,9 @@ it once (``data_K``, ``data_M``); the values of ``K - sigma M`` are then one vec
     an independent factorisation (its own value array and KSP; the index arrays shared): for
     callers that keep several shifts alive at once. Each one analyses.
 
+A :class:`Slot` keeps one live factorisation of successive shifts (a ``refactor``, or any factory whose
+factorisations it releases one by one): the pipeline's context has one, the backbone a second.
+
 Both: MUMPS LDL^T (PETSc ``cholesky``), as :func:`stepnf.linalg.factorize` (:func:`stepnf.linalg.mumps_ksp`);
 an exactly singular shift is a :class:`~stepnf.errors.NumericalError`; ``counters`` get one
 factorisation and its seconds per call (``linear_solves`` counted by the solves). The ``dense`` and
@@ -30,6 +33,7 @@ factorisation and its seconds per call (``linear_solves`` counted by the solves)
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -214,3 +218,43 @@ class ShiftedFactorizer:
         if self.counters is not None:
             self.counters.factorizations += 1
             self.counters.factorization_seconds += time.perf_counter() - t0
+
+
+class Slot:
+    """One live factorisation of ``K - sigma M`` at a time, made by ``make(sigma, label)``.
+
+    ``refactor=True``: ``make`` is a :meth:`~stepnf.shifted.ShiftedFactorizer.refactor`, which supersedes
+    its previous factorisation in place (MUMPS keeps its analysis); releasing it first would destroy the
+    instance and analyse again. Otherwise (an adapter's factorisations) the previous one is released
+    before the next is made.
+    """
+
+    def __init__(self, make: Callable[[float, str], Factorization], close: Callable[[], None] | None = None,
+                 *, refactor: bool = False):
+        self._make, self._close, self._refactor = make, close, refactor
+        self._held: tuple[float, Factorization] | None = None
+
+    def factorization(self, sigma: float, label: str) -> Factorization:
+        if self._held is not None and self._held[0] == sigma:
+            return self._held[1]
+        if not self._refactor:
+            self.release()
+        self._held = None  # a failed make leaves nothing held (a refactor's old factorisation is superseded)
+        self._held = (sigma, self._make(sigma, label))
+        return self._held[1]
+
+    def holds(self, sigma: float) -> bool:
+        """Whether the slot holds the factorisation of ``sigma`` now."""
+        return self._held is not None and self._held[0] == sigma
+
+    def release(self) -> None:
+        """Free the held factorisation (for a refactor: the instance, so the next one analyses again)."""
+        if self._held is not None:
+            self._held[1].release()
+        self._held = None
+
+    def close(self) -> None:
+        """Free the factorisation and whatever the slot keeps for the next one (a refactor's matrix)."""
+        self.release()
+        if self._close is not None:
+            self._close()

@@ -255,6 +255,26 @@ def test_one_factorisation_at_a_time_gives_the_same_backbone(system, monkeypatch
         assert made[1] > made[0]
 
 
+def test_two_slots_one_per_parity_factorise_what_they_must(system, monkeypatch):
+    """Large-model policy with one slot per parity of the harmonic: order N = 7 of a master whose shifts
+    m = 2..7 all go to the factory (complete basis, no deflation) makes 8 of them, against 12 with
+    one slot (module docstring of stepnf/stages/backbone_slots.py), and the same backbone: the same
+    factorisations of the same matrices (dense LU), made fewer times."""
+    from stepnf.stages import backbone as stage
+
+    d = system[0]
+    monkeypatch.setattr(stage, "KEEP_FACTORISATIONS_UP_TO", 0)
+    two = run_scene(load_scene(d / "s.toml"), write=False)
+    monkeypatch.setattr(stage, "TWO_SLOTS_UP_TO", 0)
+    one = run_scene(load_scene(d / "s.toml"), write=False)
+    for m1, m2 in zip(one.modes, two.modes):
+        assert m2.backbone["omega"] == m1.backbone["omega"]
+        made = [[c["factorizations"] for c in b["counts"].values()] for b in (m1.backbone, m2.backbone)]
+        # orders 2..7: the shifts m >= 2 of the order (one slot: all of them; two: the held one free), and
+        # at order 3 the bordered m = 1 (kept); K^+ is DNF's
+        assert made == [[1, 2, 2, 2, 3, 3], [1, 2, 1, 1, 2, 2]]
+
+
 def test_figure_failure_is_a_warning(system, monkeypatch, capsys):
     """A backbone figure that cannot be written costs the figure only: a warning naming it, exit 0."""
     import stepnf.backbone_plot as bp

@@ -295,6 +295,17 @@ def test_callers_solvers_and_shared_factorisations():
     inside = [m for m in range(N + 1) if m != 1 and 1.25 * (m * wp) ** 2 <= b.omega[k - 1] ** 2]
     assert inside == [0, 2, 3]
     assert sorted(made) == sorted((m * wp) ** 2 for m in range(2, N + 1) if m not in inside)
+    # the same with the resonant solve left to the deflated solver: an order's deflated solves (K^+, the
+    # resonant one, the shifts inside) then go through one lockstep run; same coefficients, same factorisations
+    made.clear()
+    blocks = []
+    lockstep = ds.solve_many
+    ds.solve_many = lambda B, s, e: blocks.append(B.shape[1]) or lockstep(B, s, e)
+    batched = dpim(f, K, M, phi, wp, N, probe=1.0, R=b.rigid, spectrum=b.omega, master=p, factory=factory,
+                   deflated=ds, resonant_exclude=[b.rigid.shape[1] + p])
+    assert batched.c == pytest.approx(ref.c, rel=1e-10)
+    assert sorted(made) == sorted((m * wp) ** 2 for m in range(2, N + 1) if m not in inside)
+    assert blocks == [2] * (N - 1)  # orders 2..7: m = 0 and 2 (even orders), 1 and 3 (odd); 4..7 factorised
     with pytest.raises(NumericalError, match="not mass-normalised"):
         dpim(f, K, M, 2 * phi, wp, 3, probe=1.0, R=b.rigid)
     with pytest.raises(NumericalError, match="not an eigenpair"):

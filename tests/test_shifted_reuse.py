@@ -225,3 +225,31 @@ def test_release_returns_the_memory_of_the_factors():
     freed = before + grown - resident_mb()
     assert grown > 20.0  # the factors are there to be freed (measured ~57 MB)
     assert freed >= 0.5 * grown
+
+
+@pytest.mark.parametrize("refactor", [True, False])
+def test_slot_keeps_one_factorisation(refactor):
+    """stepnf.shifted.Slot: asking again is free, a new shift retires the old factorisation (superseded by a
+    refactor, released otherwise: its solves raise, never wrong numbers), a failed one leaves nothing held."""
+    from stepnf.shifted import Slot
+
+    backend_or_skip("mumps")
+    K, M = pencil(N - 1)
+    K = sp.block_diag([K, sp.csr_matrix([[2.5]])], format="csr")  # an uncoupled dof: K - 2.5 M exactly singular
+    M = sp.block_diag([M, sp.csr_matrix([[1.0]])], format="csr")
+    c = Counters()
+    S = ShiftedFactorizer(K, M, counters=c, backend="mumps")
+    slot = Slot(S.refactor if refactor else S.factorizer, S.close, refactor=refactor)
+    s1, s2 = shifts(K, M)[:2]
+    f1 = slot.factorization(s1, "one")
+    assert slot.factorization(s1, "one") is f1 and slot.holds(s1) and c.factorizations == 1
+    f2 = slot.factorization(s2, "two")
+    assert slot.holds(s2) and not slot.holds(s1) and c.factorizations == 2
+    with pytest.raises(RuntimeError, match="superseded" if refactor else "released"):
+        f1.solve(np.ones(N))
+    b = np.ones(N)
+    assert relative_residual(K, M, s2, f2.solve(b), b) <= BACKWARD
+    with pytest.raises(NumericalError, match="singular"):
+        slot.factorization(2.5, "singular")
+    assert not slot.holds(s2) and not slot.holds(2.5)
+    slot.close()

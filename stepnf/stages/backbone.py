@@ -11,8 +11,10 @@ Per master mode ``p`` (:func:`stepnf.dpim.dpim`, full order):
 * the linear solves of the run's :func:`~stepnf.stages.context.full_order_context`: its ``K^+`` (the
   factorisation DNF and SMD used), its deflated solver for every shift below the computed spectrum
   (the resonant shift ``w_p^2`` included, the master and its twins left out, as MD does), its shifted
-  factorisations (adapter's or stepnf's) otherwise: kept for all orders of the master on small models,
-  one at a time on large ones (:data:`KEEP_FACTORISATIONS_UP_TO`), freed when the master is done;
+  factorisations (adapter's or stepnf's) otherwise: kept for all orders of the master up to
+  :data:`KEEP_FACTORISATIONS_UP_TO` dofs; above, two live ones (one per parity of the harmonic,
+  :mod:`stepnf.stages.backbone_slots`) up to :data:`TWO_SLOTS_UP_TO` dofs, one above; freed when the
+  master is done;
 * the computed spectrum for the internal-resonance flags (naming the mode), with one flag when the
   computed modes stop below ``N w_p`` (resonances with the higher harmonics are not checked there);
 * the master's degenerate twins passed: handled when symmetry keeps them uncoupled, else a
@@ -31,42 +33,31 @@ from ..backbone_report import WMax, backbone_report, transverse_operator
 from ..dpim import DPIMResult, dpim, planned_evaluations
 from ..errors import SceneError
 from ..gamma import gamma_scale
+from ..shifted import ShiftedFactorizer, Slot
 from ..step import ForceEvaluator, step_amplitude
+from .backbone_slots import ParitySlots
 from .context import full_order_context
 from .state import RunState
 
 
 #: Models up to this many dofs keep every shifted factorisation of a master for all its orders (a few MB
-#: each); larger ones keep one at a time (:class:`OneFactorisation`): on the 38k-dof cap each costs ~220 MB
-#: and a high mode needs N - 1 = 6 of them.
+#: each); larger ones keep at most two (:mod:`stepnf.stages.backbone_slots`): on the 38k-dof cap each
+#: costs ~220 MB and a high mode needs N - 1 = 6 of them.
 KEEP_FACTORISATIONS_UP_TO = 5000
+#: Models up to this many dofs keep two live shifted factorisations (one per parity of the harmonic) beside
+#: the eigen-solver's; larger ones one. Measured on the hex27 cap: a factorisation holds ~6 KiB per dof and
+#: K, M and the vectors ~8 KiB per dof, so three factorisations at 400k dofs take ~10 GB of this 24 GB machine.
+TWO_SLOTS_UP_TO = 400_000
 
 
-class OneFactorisation:
-    """A ``factory(sigma, label)`` for :class:`stepnf.dpim_solvers.ShiftedSolves` whose solvers share the
-    context's one slot (:meth:`~stepnf.evaluators.FullOrderContext.shifted_factorization`: one live
-    factorisation of ``K - sigma M`` at a time, the adapter's when it factorises, freed when another shift
-    is asked for). Harmonic m is solved at orders m, m + 2, ..., N, so this makes about twice as many
-    factorisations for the memory of one."""
-
-    def __init__(self, ctx):
-        self.ctx = ctx
-
-    def __call__(self, sigma: float, label: str) -> "ShiftSolve":
-        return ShiftSolve(self.ctx, sigma, label)
-
-
-class ShiftSolve:
-    """The solve of one shift through the context's slot (the factorisation made again when needed)."""
-
-    def __init__(self, ctx, sigma: float, label: str):
-        self.ctx, self.sigma, self.label = ctx, sigma, label
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        return self.ctx.shifted_factorization(self.sigma, self.label).solve(b)
-
-    def release(self) -> None:
-        self.ctx.release_shifted()
+def second_slot(state: RunState) -> Slot:
+    """The backbone's own slot (odd harmonics): a second refactor instance of stepnf's factoriser, or the
+    adapter's factorisations one at a time."""
+    ctx = full_order_context(state)
+    if getattr(ctx.shifted, "refactor", None) is None:  # the adapter's: one object per factorisation
+        return Slot(ctx.shifted)
+    own = ShiftedFactorizer(state.K, state.M, counters=state.counters, backend=state.backend)
+    return Slot(own.refactor, own.close, refactor=True)
 
 
 class PlannedForces:
@@ -104,24 +95,26 @@ def spectrum_flag(state: RunState, p: int, order: int) -> dict | None:
                        f"the harmonics {max(2, math.floor(top) + 1)}..{order} of the parametrisation are not checked"}
 
 
-def master_dpim(state: RunState, p: int, order: int, forces: ForceEvaluator, probe: float) -> DPIMResult:
-    """The DPIM of master ``p`` with the run's solvers (module docstring)."""
+def master_dpim(state: RunState, p: int, order: int, forces: ForceEvaluator, probe: float,
+                odd_slot: Slot | None = None) -> DPIMResult:
+    """The DPIM of master ``p`` with the run's solvers (module docstring); ``odd_slot``: where the odd
+    harmonics' factorisations live on a large model (None: in the run's one slot, with the even ones)."""
     ctx = full_order_context(state)
     twins = state.basis.twins(p)
     nr = state.basis.rigid.shape[1]
     w2 = float(state.omega[p]) ** 2
-    resonant = None
-    if ctx.deflated is not None and ctx.deflated.admissible(w2):
-        d, excl = ctx.deflated, [nr + p] + [nr + t for t in twins]
-        resonant = lambda b: d.solve(b, w2, exclude=excl)  # noqa: E731
-    # every factorisation of the master kept for its orders (made by the adapter, or by ShiftedSolves), or one
-    # at a time on a large model; ShiftedSolves frees them (release()) when the master is done
-    one = state.n > KEEP_FACTORISATIONS_UP_TO
-    factory = OneFactorisation(ctx) if one else ctx.shifted
+    # the deflated solver does K^+, the resonant solve (master and twins left out) and every admissible shift,
+    # the independent ones of an order in one lockstep run
+    excl = [nr + p] + [nr + t for t in twins] if ctx.deflated is not None and ctx.deflated.admissible(w2) else None
+    # every factorisation of the master kept for its orders (made by the adapter, or by ShiftedSolves), or in
+    # the slots on a large model; ShiftedSolves frees them (release()) when the master is done
+    large = state.n > KEEP_FACTORISATIONS_UP_TO
+    factory = ParitySlots(state.omega[p], (ctx.slot, odd_slot or ctx.slot)) if large else ctx.shifted
     res = dpim(PlannedForces(forces, p), state.K, state.M, state.phi[:, p], float(state.omega[p]), order,
                probe=probe, R=state.basis.rigid, spectrum=state.omega, master=p,
                twins=state.phi[:, twins] if twins else None, twin_index=twins or None,
-               factory=factory, pinv=ctx.Kpinv, resonant=resonant, deflated=ctx.deflated,
+               factory=factory, pinv=ctx.Kpinv if ctx.deflated is None else None, deflated=ctx.deflated,
+               resonant_exclude=excl,
                backend=state.backend, counters=state.counters, resonance_tolerance=state.tol.resonance,
                twin_tolerance=state.scene.degeneracy_tolerance, coupling=state.tol.coupling,
                progress=lambda k: state.progress.bar(k - 1, order - 1, f"DPIM mode {p}"))
@@ -175,18 +168,28 @@ def backbone_stage(state: RunState) -> None:
     records = {rec.index: rec for rec in state.modes}
     with state.progress.stage("backbone", f"DPIM backbone to order {spec.order}: up to {per_mode} force "
                                           f"evaluations per master mode"):
-        for p in state.masters:
-            res = master_dpim(state, p, spec.order, forces, probe)
-            state.backbones[p] = res
-            fallback = step_amplitude(state.phi[:, p], state.policy, length)
-            block = backbone_report(res, spec, wmax, probe=probe, fallback=fallback)
-            if p in records:
-                records[p].backbone = block
-            arrays = res.arrays()
-            for key in ("index", "Y", "c"):
-                state.arrays[f"backbone_{p}_{key}"] = arrays[key]
-            state.arrays[f"backbone_{p}_omega_p"] = arrays["omega"]
-            for key in ("amplitude", "omega", "w_max_over_h"):
-                if block[key] is not None:
-                    state.arrays[f"backbone_{p}_{key}"] = np.asarray(
-                        [np.nan if v is None else float(v) for v in block[key]])
+        odd = second_slot(state) if KEEP_FACTORISATIONS_UP_TO < state.n <= TWO_SLOTS_UP_TO else None
+        try:
+            for p in state.masters:
+                res = master_dpim(state, p, spec.order, forces, probe, odd)
+                fallback = step_amplitude(state.phi[:, p], state.policy, length)
+                keep_backbone(state, records.get(p), p, res, backbone_report(res, spec, wmax, probe=probe,
+                                                                             fallback=fallback))
+        finally:
+            if odd is not None:
+                odd.close()
+
+
+def keep_backbone(state: RunState, record, p: int, res: DPIMResult, block: dict) -> None:
+    """Master ``p``'s parametrisation and backbone block into the run's state (module docstring of the
+    stage's outputs); ``record`` its :class:`~stepnf.results.ModeResult`, or None."""
+    state.backbones[p] = res
+    if record is not None:
+        record.backbone = block
+    arrays = res.arrays()
+    for key in ("index", "Y", "c"):
+        state.arrays[f"backbone_{p}_{key}"] = arrays[key]
+    state.arrays[f"backbone_{p}_omega_p"] = arrays["omega"]
+    for key in ("amplitude", "omega", "w_max_over_h"):
+        if block[key] is not None:
+            state.arrays[f"backbone_{p}_{key}"] = np.asarray([np.nan if v is None else float(v) for v in block[key]])
