@@ -20,6 +20,7 @@ from .backbone import MethodResult
 from .counters import Counters
 from .errors import NumericalError
 from .evaluators import FullOrderContext, Tolerances, coupled
+from .linalg import matrix_diagonal
 from .modal import ModalBasis
 
 
@@ -44,7 +45,7 @@ def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
 
 def floor_scale(st, M: sp.spmatrix, tol: Tolerances) -> float:
     """``tol.coupling * ||G(phi_p, phi_p)||`` in the lumped ``M^-1`` norm (bounds every ``|g^s_pp|``)."""
-    dm = np.asarray(M.diagonal()).ravel()
+    dm = matrix_diagonal(M)
     return tol.coupling * float(np.sqrt(np.sum(st.Gv**2 / np.where(dm > 0, dm, np.inf))))
 
 
@@ -186,7 +187,7 @@ def inverse_mass_norm2(M: sp.spmatrix, v: np.ndarray, rtol: float = INVERSE_MASS
     v = np.asarray(v, dtype=float)
     if not np.any(v):
         return 0.0
-    d = np.asarray(M.diagonal(), dtype=float).ravel()
+    d = matrix_diagonal(M)
     if np.any(d <= 0):
         raise NumericalError("the mass matrix has non-positive diagonal entries: its M^-1 norm is undefined")
     r, total, last = v.copy(), 0.0, np.inf

@@ -35,7 +35,7 @@ import scipy.sparse.linalg as spla
 from .counters import Counters
 from .eigen_extension import extension_size, merged_modes, shift_invert_modes
 from .errors import NumericalError
-from .linalg import DENSE_LIMIT
+from .linalg import DENSE_LIMIT, matrix_diagonal
 from .shifted import ShiftedFactorizer
 
 
@@ -91,8 +91,7 @@ def _normalise(phi: np.ndarray, M: sp.spmatrix) -> np.ndarray:
 
 def lambda_scale(K: sp.spmatrix, M: sp.spmatrix) -> float:
     """``max(diag K / diag M)``: the order of magnitude of the largest eigenvalue."""
-    dk = np.asarray(K.diagonal()).ravel() if sp.issparse(K) else np.diag(K)
-    dm = np.asarray(M.diagonal()).ravel() if sp.issparse(M) else np.diag(M)
+    dk, dm = matrix_diagonal(K), matrix_diagonal(M)
     ok = dm > 0
     if not ok.any():
         raise NumericalError("the mass matrix has no positive diagonal entry")

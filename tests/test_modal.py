@@ -117,3 +117,25 @@ def test_degenerate_pairs_get_a_solver_independent_orientation():
     # the probe depends on positions, not on the dof order
     perm = rng.permutation(n)
     assert np.allclose(probe_vector(X[perm], D[perm], n), probe[perm])
+
+
+def test_matrix_diagonal_is_read_once_per_matrix():
+    """stepnf.linalg.matrix_diagonal: the diagonal, kept for the same object (read-only), read again for a
+    new one, dropped when the matrix is collected."""
+    import gc
+
+    import scipy.sparse as sp
+
+    from stepnf import linalg
+
+    A = sp.random(50, 50, density=0.2, random_state=1, format="csr") + sp.eye(50, format="csr")
+    d = linalg.matrix_diagonal(A)
+    assert np.array_equal(d, A.diagonal()) and not d.flags.writeable
+    assert linalg.matrix_diagonal(A) is d
+    B = A.copy()
+    assert linalg.matrix_diagonal(B) is not d and np.array_equal(linalg.matrix_diagonal(B), d)
+    key = id(B)
+    del B
+    gc.collect()
+    assert key not in linalg._DIAGONALS
+    assert np.array_equal(linalg.matrix_diagonal(np.diag([1.0, 2.0])), [1.0, 2.0])  # a dense matrix too
