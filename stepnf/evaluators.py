@@ -262,11 +262,9 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
         y = ctx.Kpinv(Gv)
     b = dnf_shifted_rhs(Gv, ctx)
     try:
-        if z is not None:
-            pass
-        elif not dnf_uses_factorisation(omega_p, ctx):
+        if z is None and not dnf_uses_factorisation(omega_p, ctx):
             z = ctx.deflated.solve(b, 4 * w2)  # 2 w_p inside the computed spectrum: no factorisation
-        else:
+        elif z is None:
             Z = ctx.shifted_factorization(4 * w2, f"K - 4 w^2 M (mode {p})")
             z = Z.solve(b)
     except NumericalError as exc:  # exact 1:2 resonance: the NF diverges (same convention as nf_modal)
@@ -370,11 +368,9 @@ def _md_theta_result(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h:
     if twin is not None:
         return MethodResult("md", -np.inf, (float(phi @ Gv), 0.0, 0.0, np.inf, np.inf, np.inf),
                             [twin], order="full"), None, None
-    if theta is not None:
-        pass
-    elif ctx.deflated is not None and exclude is not None:
+    if theta is None and ctx.deflated is not None and exclude is not None:
         theta = ctx.deflated.solve(-2.0 * Gv, w2, exclude=exclude)
-    else:
+    elif theta is None:
         MD = ctx.M @ D
         A = sp.bmat([[sp.csr_matrix(ctx.K) - w2 * sp.csr_matrix(ctx.M), sp.csr_matrix(MD)],
                      [sp.csr_matrix(MD.T), None]]).tocsr()
