@@ -187,7 +187,7 @@ def modal_analysis(
 
     need = max(int(n_modes or 1), 1)
     if eigensolver is not None:
-        return _adapter_modes(eigensolver, M, need, _first_size(need, first_batch, rigid_modes), scale,
+        return _adapter_modes(eigensolver, M, need, _first_size(need, first_batch, rigid_modes, max_modes), scale,
                               rigid_tolerance, rigid_modes, degeneracy_tolerance, min_omega, enough, max_modes,
                               progress)
     # a small negative shift: K - sigma M is regular even with rigid-body modes
@@ -197,7 +197,7 @@ def modal_analysis(
         R = rigid_modes_from(K, M, rigid_candidates, scale, rigid_tolerance)
     # on the union pattern of K and M, shared with them: no copy of the indices, no sparse sum kept
     fac = ShiftedFactorizer(K, M, counters=counters, backend=backend).factorizer(sigma, "K - sigma M (eigen-solve)")
-    k = _first_size(need, first_batch, rigid_modes if R is None else 0)  # R known: no room for it
+    k = _first_size(need, first_batch, rigid_modes if R is None else 0, max_modes)  # R known: no room for it
     k = min(k, n - 2 - (R.shape[1] if R is not None else 0))
     if progress:
         progress(f"eigen-solve: {k} modes of a {n}-dof model")
@@ -251,11 +251,13 @@ def _satisfied(basis: ModalBasis, need: int, min_omega: float | None,
     return done and (enough is None or enough(basis))
 
 
-def _first_size(need: int, first_batch: int | None, rigid_modes: int | None) -> int:
+def _first_size(need: int, first_batch: int | None, rigid_modes: int | None, max_modes: int) -> int:
     """Modes of the first eigen-solve: the elastic ones (``first_batch``, or ``need`` + 4 for a twin
-    and the modes just above) and room for the rigid ones it has to find (``rigid_modes``, the
-    scene's count; six when None; 0 when they are projected out from the start)."""
+    and the modes just above; at most ``max_modes``, unless ``need`` is more) and room for the rigid
+    ones it has to find (``rigid_modes``, the scene's count; six when None; 0 when they are projected
+    out from the start)."""
     elastic = need + 4 if first_batch is None else max(int(first_batch), 1)
+    elastic = min(elastic, max(int(max_modes), need))
     return elastic + (_RIGID_ROOM if rigid_modes is None else int(rigid_modes))
 
 

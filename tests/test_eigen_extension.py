@@ -236,3 +236,12 @@ def test_first_batch_sets_the_first_run():
     K, M, _ = membrane(48, free=False)
     b, sizes, _ = extended(K, M, 15, rigid_modes=0, first_batch=16)
     assert sizes == [16] and b.n_elastic == 16
+
+
+def test_first_batch_respects_max_modes():
+    """max_modes caps the first run as it caps the extensions: 2 needed (+ 4 for twins) with max_modes = 4
+    computes 4 elastic modes, not 6; a need above max_modes is still met."""
+    K, M, _ = membrane(48, free=False)
+    assert single(K, M, 2, rigid_modes=0, max_modes=4).n_elastic == 4
+    assert single(K, M, 2, rigid_modes=0).n_elastic == 6
+    assert single(K, M, 5, rigid_modes=0, max_modes=4).n_elastic == 5
