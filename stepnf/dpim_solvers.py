@@ -99,7 +99,10 @@ class ShiftedSolves:
         out: list[np.ndarray | None] = [None] * len(items)
         plans = [(i, self._deflated_plan(abs(int(m)), b)) for i, (m, b) in enumerate(items)]
         plans = [(i, plan) for i, plan in plans if plan is not None]
-        if len(plans) > 1:
+        if len(plans) == 1:  # one deflated solve: as planned, not planned again by solve()
+            i, (rhs, sigma, exclude, finish) = plans[0]
+            out[i] = finish(self.deflated.solve(rhs, sigma, exclude=exclude))
+        elif plans:
             X = self.deflated.solve_many(np.column_stack([plan[0] for _, plan in plans]),
                                          [plan[1] for _, plan in plans], [plan[2] for _, plan in plans])
             for j, (i, plan) in enumerate(plans):

@@ -47,7 +47,7 @@ output). A diverging evaluation (flagged, ``T = +-inf``) has no fields.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -207,14 +207,13 @@ class FullOrderContext:
     deflated: "DeflatedSolver | None" = None
     #: keep the displacement vectors in ``MethodResult.fields`` (see the module docstring)
     keep_fields: bool = True
-    #: the one live factorisation of :meth:`shifted_factorization` (made in ``__post_init__``)
-    slot: Slot | None = None
+    #: the one live factorisation of :meth:`shifted_factorization` (made from ``shifted``)
+    slot: Slot = field(init=False)
 
     def __post_init__(self) -> None:
         if self.shifted is None:  # stepnf's own: K - sigma M on one pattern shared with K and M
             self.shifted = ShiftedFactorizer(self.K, self.M, counters=self.counters, backend=self.backend)
-        refactor = getattr(self.shifted, "refactor", None)
-        self.slot = Slot(refactor or self.shifted, refactor=refactor is not None)
+        self.slot = Slot.over(self.shifted)
 
     def shifted_factorization(self, sigma: float, label: str) -> Factorization:
         """Factorisation of ``K - sigma M``; the latest one is kept, so asking again is free.

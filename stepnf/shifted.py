@@ -234,6 +234,13 @@ class Slot:
         self._make, self._close, self._refactor = make, close, refactor
         self._held: tuple[float, Factorization] | None = None
 
+    @classmethod
+    def over(cls, factory, close: Callable[[], None] | None = None) -> "Slot":
+        """The slot of ``factory``: its ``refactor`` when it has one (a :class:`ShiftedFactorizer`), else
+        ``factory(sigma, label)`` itself (an adapter's factorisations)."""
+        refactor = getattr(factory, "refactor", None)
+        return cls(refactor or factory, close, refactor=refactor is not None)
+
     def factorization(self, sigma: float, label: str) -> Factorization:
         if self._held is not None and self._held[0] == sigma:
             return self._held[1]

@@ -55,9 +55,9 @@ def second_slot(state: RunState) -> Slot:
     adapter's factorisations one at a time."""
     ctx = full_order_context(state)
     if getattr(ctx.shifted, "refactor", None) is None:  # the adapter's: one object per factorisation
-        return Slot(ctx.shifted)
+        return Slot.over(ctx.shifted)
     own = ShiftedFactorizer(state.K, state.M, counters=state.counters, backend=state.backend)
-    return Slot(own.refactor, own.close, refactor=True)
+    return Slot.over(own, own.close)
 
 
 class PlannedForces:
