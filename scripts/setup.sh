@@ -26,10 +26,14 @@ if [ "$with_tests" -eq 1 ]; then apt_packages+=(debootstrap podman python3-vtk9)
 installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
 # CalculiX: the calculix-ccx package where Debian has one (12), else a ccx of the user's (13 has none)
 ccx_candidate() { apt-cache policy calculix-ccx 2>/dev/null | grep -q "Candidate: [0-9]"; }
+# Debian 12 packages it: asked for there even when the package lists on the machine do not list it
+# yet (a fresh machine's lists may hold only the security updates); dropped after apt-get update
+# if it is still unknown
+debian_12() { [ -r /etc/os-release ] && grep -q '^VERSION_ID="12"' /etc/os-release; }
 apt_lists() { compgen -G "/var/lib/apt/lists/*_Packages*" >/dev/null; }
 want_ccx=0
 if ! command -v ccx >/dev/null 2>&1 && ! installed calculix-ccx; then
-  if ! apt_lists || ccx_candidate; then want_ccx=1; apt_packages+=(calculix-ccx); fi
+  if ! apt_lists || debian_12 || ccx_candidate; then want_ccx=1; apt_packages+=(calculix-ccx); fi
 fi
 missing=()
 for p in "${apt_packages[@]}"; do installed "$p" || missing+=("$p"); done
