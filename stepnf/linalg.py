@@ -361,7 +361,8 @@ class PseudoInverse:
             if counters is not None:
                 counters.factorizations += 1
             raw = solver_factory(0.0, fixed_dofs=self.fixed)
-            self._fac = Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, "K (supported)")
+            self._fac = Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, "K (supported)",
+                                      on_release=getattr(raw, "release", None))
             self._full = True
         else:
             Kc = sp.csr_matrix(K)[self.free][:, self.free]
@@ -388,11 +389,12 @@ class PseudoInverse:
 def apply_columns(solve: Callable[[np.ndarray], np.ndarray], b: np.ndarray) -> np.ndarray:
     """``solve`` applied to ``b`` (n,), or to each column of ``b`` (n, k): a result of ``b``'s shape.
 
-    ``solve`` takes one right-hand side (n,) only, such as an adapter's shifted
-    solve of ``K - sigma M`` (in the adapter's units and dof order); the result
-    is what :class:`Factorization` expects of its ``solve``: an (n,) float
-    array, or the (n, k) columns stacked (k calls of ``solve``).
+    ``solve`` takes one right-hand side (n,), such as an adapter's shifted
+    solve of ``K - sigma M`` (in the adapter's units and dof order), unless it
+    declares ``takes_columns = True`` (it then solves (n, k) at once, e.g. in
+    one MUMPS call); the result is what :class:`Factorization` expects of its
+    ``solve``: an (n,) float array, or the (n, k) columns stacked.
     """
-    if b.ndim == 1:
+    if b.ndim == 1 or getattr(solve, "takes_columns", False):
         return np.asarray(solve(b), dtype=float)
     return np.column_stack([solve(b[:, j]) for j in range(b.shape[1])])

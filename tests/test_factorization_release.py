@@ -21,3 +21,29 @@ def test_solve_then_release(backend):
     fac.release()  # idempotent
     with pytest.raises(RuntimeError, match="factorisation of A was released"):
         fac.solve(b)
+
+
+def test_adapter_solves_get_columns_one_by_one_unless_they_take_blocks():
+    """:func:`stepnf.linalg.apply_columns`: an adapter's solve sees (n,) right-hand sides, or the whole (n, k)
+    block in one call when it declares ``takes_columns`` (a distributed MUMPS block solve)."""
+    from stepnf.linalg import apply_columns
+
+    seen = []
+
+    def one(b):
+        seen.append(b.shape)
+        return 2.0 * b
+
+    class Block:
+        takes_columns = True
+
+        def __call__(self, b):
+            seen.append(b.shape)
+            return 2.0 * b
+
+    B = np.arange(12.0).reshape(4, 3)
+    assert np.array_equal(apply_columns(one, B), 2.0 * B) and seen == [(4,)] * 3
+    seen.clear()
+    assert np.array_equal(apply_columns(Block(), B), 2.0 * B) and seen == [(4, 3)]
+    seen.clear()
+    assert np.array_equal(apply_columns(Block(), B[:, 0]), 2.0 * B[:, 0]) and seen == [(4,)]

@@ -15,10 +15,12 @@ from .state import RunState
 
 
 def adapter_shifted(shift_solver: Callable, n: int, counters: Counters) -> Callable[[float, str], Factorization]:
-    """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects."""
+    """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects (releasing one
+    calls the solve's ``release()`` when the adapter gives it one: its factors are freed then)."""
     def shifted(sigma: float, label: str) -> Factorization:
         raw = timed_factorisation(counters, lambda: shift_solver(sigma))
-        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label)
+        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label,
+                             on_release=getattr(raw, "release", None))
     return shifted
 
 

@@ -60,6 +60,7 @@ from stepnf.boundary import FreeDofs
 from stepnf.errors import NumericalError
 
 from . import _compat
+from .direct import DirectSolve
 from .layout import FreeLayout, GlobalLayout, RankBlocks, gather_matrix
 from .serial import FenicsxAdapter
 
@@ -104,7 +105,7 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
         self._n = self.layout.n
         self._Kp = None  # distributed PETSc matrices
         self._Mp = None
-        self._petsc: list[Any] = []  # solvers to destroy on close()
+        self._solves: list[DirectSolve] = []  # factorisations handed out, released on close() at the latest
         self._eps = None  # the last SLEPc solver (its factorisation preconditions the deflated solves)
         self._deflated = None
         self._eigen_shift = 0.0
@@ -291,14 +292,8 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
         if self._eps is not None:
             self._eps.destroy()
         self._eps = eps
-        ksp = eps.getST().getKSP()
-        x, b = self._vec(), self._vec()
-
-        def precond(rhs: np.ndarray) -> np.ndarray:
-            b.array[:] = self.layout.owned(rhs)
-            ksp.solve(b, x)
-            return self.layout.gather(x.array)
-
+        # SLEPc owns the KSP (destroyed with eps); one column or a block of them per call
+        precond = DirectSolve(eps.getST().getKSP(), self.layout, "K - sigma_0 M (eigen-solve)")
         self._deflated = DeflatedSolver(self.stiffness_matrix(), self.mass_matrix(), Phi, lam, R, precond)
 
     def _deflated_solve(self, sigma: float, fixed_dofs: Sequence[int] | None
@@ -344,7 +339,9 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
         Below the computed spectrum, by deflation with the computed modes and
         CG preconditioned by the eigen-solve's factorisation (as the serial
         core does, :mod:`stepnf.deflation`); otherwise a new parallel MUMPS
-        ``LDL^T`` factorisation.
+        ``LDL^T`` factorisation, a :class:`~stepnf_fenicsx.direct.DirectSolve`: blocks of right-hand
+        sides in one MUMPS call, freed by its ``release()`` (stepnf's slot calls it before the next
+        factorisation) or at :meth:`close`.
         """
         from petsc4py import PETSc
 
@@ -363,20 +360,11 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
             mine = fixed[(fixed >= self.layout.start) & (fixed < self.layout.start + self.layout.n_owned)]
             A.zeroRowsColumns(mine.astype(PETSc.IntType), diag=1.0)
         ksp = PETSc.KSP().create(self.layout.comm)
+        solve = DirectSolve(ksp, self.layout, f"K - {sigma:.6g} M", owned=[ksp, A])
+        self._solves = [s for s in self._solves if s.ksp is not None] + [solve]  # (released ones dropped)
         self._mumps_ksp(ksp, A)
         ksp.setUp()
-        self._petsc += [ksp, A]
-        x, b = A.createVecs()
         self.timings["factorizations"] = self.timings.get("factorizations", 0.0) + time.perf_counter() - t0
-
-        def solve(rhs: np.ndarray) -> np.ndarray:
-            b.array[:] = self.layout.owned(np.asarray(rhs, dtype=float))
-            ksp.solve(b, x)
-            if ksp.getConvergedReason() < 0:
-                raise NumericalError(f"MUMPS solve with K - {sigma:.6g} M failed "
-                                     f"(KSP reason {ksp.getConvergedReason()})")
-            return self.layout.gather(x.array)
-
         return solve
 
     # ------------------------------------------------------------ bookkeeping
@@ -391,9 +379,9 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
         if self._eps is not None:
             self._eps.destroy()
             self._eps = None
-        for obj in self._petsc:
-            obj.destroy()
-        self._petsc = []
+        for solve in self._solves:
+            solve.release()
+        self._solves = []
         for A in (self._Kp, self._Mp):
             if A is not None:
                 A.destroy()
