@@ -30,6 +30,11 @@ from .counters import Counters
 from .errors import NumericalError
 
 
+#: A shift is solved by deflation when the first uncomputed eigenvalue is at least this many times it:
+#: the preconditioned operator's eigenvalues on the uncomputed modes then lie in [1 - 1/1.25, 1], and CG
+#: converges in a few tens of iterations.
+ADMISSIBLE_MARGIN = 1.25
+
 class DeflatedSolver:
     """Solves ``(K - sigma M) x = b`` for any admissible sigma with one factorisation (see module docstring).
 
@@ -53,7 +58,7 @@ class DeflatedSolver:
         self.lam_next = float(lam[-1]) if len(lam) else 0.0
         self.iterations: list[int] = []
 
-    def admissible(self, sigma: float, margin: float = 1.25) -> bool:
+    def admissible(self, sigma: float, margin: float = ADMISSIBLE_MARGIN) -> bool:
         """True when CG will converge fast: ``sigma`` at most ``lam_next / margin``."""
         return sigma * margin <= self.lam_next
 

@@ -86,3 +86,46 @@ def test_lockstep_solves_give_the_one_by_one_results(runs):
             assert [f["kind"] for f in a.methods[name].flags] == [f["kind"] for f in b.methods[name].flags]
     for key in ("linear_solves", "factorizations", "eigensolver_solves", "force_evaluations"):
         assert lock.counts[key] == one.counts[key], key
+
+
+def test_span_batch_solves_every_dnf_shift_by_deflation(runs, tmp_path, monkeypatch):
+    """A large model's first eigen-solve reaches 2 w_p of every master (stepnf.stages.modes.dnf_span_batch,
+    switched on here for this small cap): DNF's K - 4 w^2 M is then solved by deflation for every master, no
+    factorisation but the eigen-solver's, and T is that of the run that factorised.
+
+    Tolerance: the solves now differ (deflated CG to 1e-12 |b| on 31 modes against a factorisation, and CG
+    on 16), by ~1e-11 relative; T of (2, 0) nearly cancels (its Gamma is 0.014 where its quadratic and
+    cubic parts are each ~1), which multiplies that by ~1e3: measured 2.0e-8 for DNF, 1.4e-8 for MD and
+    SMD, 7e-10 and less for the other modes; a wrong solve gives O(1)."""
+    from stepnf.stages import modes
+
+    (lock, _), _ = runs
+    monkeypatch.setattr(modes, "DNF_SPAN_FROM", 0)
+    span, events = run(tmp_path, monkeypatch, lockstep=True)
+    assert span.counts["factorizations"] == 1 and not [e for e in events if e[0] == "refactor"], events
+    assert span.counts["eigensolver_solves"] > lock.counts["eigensolver_solves"]  # the price: more modes
+    for a, b in zip(span.modes, lock.modes):
+        assert a.label == b.label
+        for name in METHODS:
+            assert a.methods[name].T == pytest.approx(b.methods[name].T, rel=1e-7, abs=0.0), (a.label, name)
+
+
+def test_span_batch_size():
+    """The first eigen-solve of dnf_span_batch: 2 sqrt(1.25) times the modes up to the highest master, plus
+    four; only for large models on stepnf's own eigen-solver, with DNF and deflation."""
+    from types import SimpleNamespace
+
+    from stepnf.stages.modes import DNF_SPAN_FROM, dnf_span_batch, first_batch
+
+    def state(n=DNF_SPAN_FROM, masters=("(2,0)",) * 6, evaluators=("dnf", "md_full"), deflation=True,
+              own_eigen=True):
+        scene = SimpleNamespace(master_modes=list(masters), deflation=deflation)
+        return SimpleNamespace(scene=scene, n=n, evaluators=set(evaluators), needs_modal=False, n_ret=10,
+                               adapter=SimpleNamespace(provides_eigenmodes=not own_eigen))
+
+    assert dnf_span_batch(state()) == 27 + 4 == first_batch(state())  # ceil(2.236 x 12) + 4
+    assert dnf_span_batch(state(masters=[0, 5])) == 14 + 4 == first_batch(state(masters=[0, 5]))
+    for other in (state(n=DNF_SPAN_FROM - 1), state(evaluators=("md_full", "smd_full")),
+                  state(deflation=False), state(own_eigen=False)):
+        assert dnf_span_batch(other) is None
+    assert first_batch(state(n=1000)) == 16 and first_batch(state(n=1000, masters=[0, 5])) is None

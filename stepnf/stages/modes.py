@@ -1,11 +1,13 @@
 """Stage ``modes``: the eigen-solve, the mode labels, the master modes and the model's run flags."""
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Callable
 
 import numpy as np
 
+from ..deflation import ADMISSIBLE_MARGIN
 from ..diagnostics import conditioning_flags, soft_mode_flags
 from ..errors import ModelWarning
 from ..modal import ModalBasis, lambda_scale, modal_analysis, orient_degenerate, probe_vector
@@ -40,11 +42,43 @@ def first_batch(state: RunState) -> int | None:
     degenerate pair) and four more (the modes just above the highest one), at least
     :func:`modes_needed`; None (the eigen-solve's own default) when every master is an index. On the
     paper's cap (six labelled masters, the highest the 14th mode) that is one run of 16 modes where a
-    first run of 6 had to be extended."""
+    first run of 6 had to be extended. On a large model, more: :func:`dnf_span_batch`."""
     masters = state.scene.master_modes
-    if not any(isinstance(m, str) for m in masters):
+    labelled = any(isinstance(m, str) for m in masters)
+    batch = max(modes_needed(state), 2 * len(masters) + 4) if labelled else None
+    span = dnf_span_batch(state)
+    return batch if span is None else max(batch or modes_needed(state) + 4, span)
+
+
+#: Models from this many dofs compute the modes that DNF's shifted solves need (:func:`dnf_span_batch`).
+#: Measured on the hex27 cap, six labelled masters, one thread (a first run of 32 modes against 20 with
+#: ``retained_modes = 20``, 16 for DNF alone): all four methods 63 -> 52 s at 250k dofs and 310-316 ->
+#: 252 s at 1M; DNF alone the same at 250k, 1.5 s slower at 44k and 112k (where a factorisation costs
+#: 20 to 25 shifted solves, not 30 to 40), so smaller models factorise.
+DNF_SPAN_FROM = 200_000
+
+
+def dnf_span_batch(state: RunState) -> int | None:
+    """On a model of at least :data:`DNF_SPAN_FROM` dofs running full-order DNF with deflation on
+    stepnf's own eigen-solver: a first eigen-solve that reaches ``2 w_p`` of every master with the
+    deflation's margin, so that DNF's ``K - 4 w_p^2 M`` is solved by deflation instead of a new
+    factorisation (one of 30-45 s at 1M dofs, against ~1.2 s per mode more in the eigen-solve).
+
+    The modes below a frequency grow about linearly with it for a plate or a shell, so the run asks
+    for ``2 sqrt(margin)`` times the modes up to the highest master (its index + 1, or twice the
+    number of labelled masters, as :func:`first_batch` guesses it) and four more (a twin, the modes
+    just above). None otherwise. A guess that falls short only costs the factorisations it would
+    have saved."""
+    scene = state.scene
+    if (state.n < DNF_SPAN_FROM or "dnf" not in state.evaluators or not scene.deflation
+            or state.adapter.provides_eigenmodes):
         return None
-    return max(modes_needed(state), 2 * len(masters) + 4)
+    masters = scene.master_modes
+    if any(isinstance(m, str) for m in masters):
+        top = 2 * len(masters)
+    else:
+        top = max(masters, default=0) + 1
+    return math.ceil(2 * math.sqrt(ADMISSIBLE_MARGIN) * top) + 4
 
 
 def enough_modes(state: RunState, labels: ModeLabels) -> Callable[[ModalBasis], bool]:
