@@ -35,6 +35,7 @@ from .errors import NumericalError
 #: converges in a few tens of iterations.
 ADMISSIBLE_MARGIN = 1.25
 
+
 class DeflatedSolver:
     """Solves ``(K - sigma M) x = b`` for any admissible sigma with one factorisation (see module docstring).
 

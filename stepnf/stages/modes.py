@@ -51,10 +51,11 @@ def first_batch(state: RunState) -> int | None:
 
 
 #: Models from this many dofs compute the modes that DNF's shifted solves need (:func:`dnf_span_batch`).
-#: Measured on the hex27 cap, six labelled masters, one thread (a first run of 32 modes against 20 with
-#: ``retained_modes = 20``, 16 for DNF alone): all four methods 63 -> 52 s at 250k dofs and 310-316 ->
-#: 252 s at 1M; DNF alone the same at 250k, 1.5 s slower at 44k and 112k (where a factorisation costs
-#: 20 to 25 shifted solves, not 30 to 40), so smaller models factorise.
+#: Measured on the hex27 cap, six labelled masters, one thread, the same day (a first run of 31-32 modes
+#: against 20 with ``retained_modes = 20``, 16 for DNF alone): all four methods 61-65 -> 46-47 s at 250k
+#: dofs and 310-316 -> 215-252 s at 1M, DNF alone 45-55 -> 42-44 s at 250k and 266-292 -> 206 s at 1M;
+#: but DNF alone 1.5 s slower at 44k and 112k (a factorisation costs there 20 to 25 shifted solves, not
+#: 30 to 40), so smaller models factorise.
 DNF_SPAN_FROM = 200_000
 
 
@@ -62,7 +63,7 @@ def dnf_span_batch(state: RunState) -> int | None:
     """On a model of at least :data:`DNF_SPAN_FROM` dofs running full-order DNF with deflation on
     stepnf's own eigen-solver: a first eigen-solve that reaches ``2 w_p`` of every master with the
     deflation's margin, so that DNF's ``K - 4 w_p^2 M`` is solved by deflation instead of a new
-    factorisation (one of 30-45 s at 1M dofs, against ~1.2 s per mode more in the eigen-solve).
+    factorisation (one of 30-45 s at 1M dofs, against about one shifted solve, ~1.2 s, per mode more).
 
     The modes below a frequency grow about linearly with it for a plate or a shell, so the run asks
     for ``2 sqrt(margin)`` times the modes up to the highest master (its index + 1, or twice the
