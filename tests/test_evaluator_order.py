@@ -112,19 +112,22 @@ def test_span_batch_solves_every_dnf_shift_by_deflation(runs, tmp_path, monkeypa
 
 def test_span_batch_size():
     """The first eigen-solve of dnf_span_batch: 2 sqrt(1.25) times the modes up to the highest master, plus
-    four; only for large models on stepnf's own eigen-solver, with DNF and deflation."""
+    four; only for large models with DNF and deflation, not with an adapter's eigen-solver that has no
+    shifted solves to deflate with."""
     from types import SimpleNamespace
 
     from stepnf.stages.modes import DNF_SPAN_FROM, dnf_span_batch, first_batch
 
     def state(n=DNF_SPAN_FROM, masters=("(2,0)",) * 6, evaluators=("dnf", "md_full"), deflation=True,
-              own_eigen=True):
+              own_eigen=True, shifted=False):
         scene = SimpleNamespace(master_modes=list(masters), deflation=deflation)
+        adapter = SimpleNamespace(provides_eigenmodes=not own_eigen, provides_shifted_solves=shifted)
         return SimpleNamespace(scene=scene, n=n, evaluators=set(evaluators), needs_modal=False, n_ret=10,
-                               adapter=SimpleNamespace(provides_eigenmodes=not own_eigen))
+                               adapter=adapter)
 
     assert dnf_span_batch(state()) == 27 + 4 == first_batch(state())  # ceil(2.236 x 12) + 4
     assert dnf_span_batch(state(masters=[0, 5])) == 14 + 4 == first_batch(state(masters=[0, 5]))
+    assert dnf_span_batch(state(own_eigen=False, shifted=True)) == 31  # SLEPc and MUMPS under MPI
     for other in (state(n=DNF_SPAN_FROM - 1), state(evaluators=("md_full", "smd_full")),
                   state(deflation=False), state(own_eigen=False)):
         assert dnf_span_batch(other) is None
