@@ -111,9 +111,13 @@ def test_linearised_T_error_on_the_cap_matches_a_second_solve(monkeypatch):
     ``|Gv|``, out of the solves' round-off, and the estimate compared with T
     solved again at ``Gv - dGv``: the ratio is 1 + O(eps) (second-order
     remainder) + the error of ``Z M theta`` from the computed modes. Measured
-    on the 38k-dof example (6 masters): |ratio - 1| <= 2.1e-5; asserted
-    eps = 1e-4. The unscaled estimate stays within a factor 3 of the second
-    solve's (both ~1e-9..1e-12, where the second solve's own round-off shows).
+    on the 38k-dof example (6 masters): |ratio - 1| <= 2.1e-5; on this coarse
+    cap up to 1.26e-4 (MD of mode 13), depending on the last digits of the
+    compiled forms (FFCx tabulates the elements with LAPACK, whose thread count
+    changes them: the eigen-solve then takes another path); asserted 5 eps, where
+    a wrong linearisation is off by O(1). The unscaled estimate stays within a
+    factor 3 of the second solve's (both ~1e-9..1e-12, where the second solve's
+    own round-off shows).
     """
     eps, seen = 1e-4, []
 
@@ -133,7 +137,7 @@ def test_linearised_T_error_on_the_cap_matches_a_second_solve(monkeypatch):
     res = pipeline.run_scene(_cap(), write=False)
     assert len(seen) == 8
     for name, p, same_T, ratio in seen:
-        assert same_T and abs(ratio - 1) <= eps, (name, p, ratio)
+        assert same_T and abs(ratio - 1) <= 5 * eps, (name, p, ratio)
     for m in res.modes:
         for name in ("md", "smd"):
             assert m.methods[name].T_error is not None and m.methods[name].T_error < 1e-6
