@@ -9,18 +9,17 @@ import numpy as np
 from ..counters import Counters
 from ..deflation import DeflatedSolver
 from ..evaluators import FullOrderContext
-from ..linalg import Factorization, PseudoInverse, apply_columns
+from ..linalg import Factorization, PseudoInverse, adapter_factorization, apply_columns
 from ..modal import lambda_scale
 from .state import RunState
 
 
 def adapter_shifted(shift_solver: Callable, n: int, counters: Counters) -> Callable[[float, str], Factorization]:
-    """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects (releasing one
-    calls the solve's ``release()`` when the adapter gives it one: its factors are freed then)."""
+    """The adapter's own ``K - sigma M`` factorisations, as :class:`Factorization` objects
+    (:func:`~stepnf.linalg.adapter_factorization`: releasing one frees the adapter's factors)."""
     def shifted(sigma: float, label: str) -> Factorization:
-        raw = timed_factorisation(counters, lambda: shift_solver(sigma))
-        return Factorization(lambda b: apply_columns(raw, b), n, "adapter", counters, label,
-                             on_release=getattr(raw, "release", None))
+        return adapter_factorization(timed_factorisation(counters, lambda: shift_solver(sigma)), n, counters,
+                                     label)
     return shifted
 
 
@@ -58,7 +57,7 @@ def deflation_preconditioner(state: RunState, shift_solver: Callable | None) -> 
         return lambda b: F0.solve(b, count=False)
     if shift_solver is not None and scene.deflation and basis.n_elastic and not basis.complete:
         raw = timed_factorisation(state.counters, lambda: shift_solver(-1e-10 * lambda_scale(state.K, state.M)))
-        return lambda b: apply_columns(raw, b)  # the adapter solves one right-hand side at a time
+        return lambda b: apply_columns(raw, b)  # a block in one call only if the solve takes_columns
     return None
 
 

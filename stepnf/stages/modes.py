@@ -45,7 +45,7 @@ def first_batch(state: RunState) -> int | None:
     first run of 6 had to be extended. On a large model, more: :func:`dnf_span_batch`."""
     masters = state.scene.master_modes
     labelled = any(isinstance(m, str) for m in masters)
-    batch = max(modes_needed(state), 2 * len(masters) + 4) if labelled else None
+    batch = max(modes_needed(state), modes_to_highest_master(masters) + 4) if labelled else None
     span = dnf_span_batch(state)
     return batch if span is None else max(batch or modes_needed(state) + 4, span)
 
@@ -68,8 +68,8 @@ def dnf_span_batch(state: RunState) -> int | None:
     45.3 s and 3632 -> 3083 MB per rank, all four methods 55.9 -> 50.6 s).
 
     The modes below a frequency grow about linearly with it for a plate or a shell, so the run asks
-    for ``2 sqrt(margin)`` times the modes up to the highest master (its index + 1, or twice the
-    number of labelled masters, as :func:`first_batch` guesses it) and four more (a twin, the modes
+    for ``2 sqrt(margin)`` times the modes up to the highest master (:func:`modes_to_highest_master`)
+    and four more (a twin, the modes
     just above). None otherwise. A guess that falls short only costs the factorisations it would
     have saved."""
     scene = state.scene
@@ -78,12 +78,15 @@ def dnf_span_batch(state: RunState) -> int | None:
         return None
     if adapter.provides_eigenmodes and not adapter.provides_shifted_solves:  # nothing to deflate with
         return None
-    masters = scene.master_modes
+    return math.ceil(2 * math.sqrt(ADMISSIBLE_MARGIN) * modes_to_highest_master(scene.master_modes)) + 4
+
+
+def modes_to_highest_master(masters: list) -> int:
+    """The elastic modes up to the highest master: its index + 1; for labels, whose indices the
+    eigen-solve has yet to find, a guess of two per master (each may be one of a degenerate pair)."""
     if any(isinstance(m, str) for m in masters):
-        top = 2 * len(masters)
-    else:
-        top = max(masters, default=0) + 1
-    return math.ceil(2 * math.sqrt(ADMISSIBLE_MARGIN) * top) + 4
+        return 2 * len(masters)
+    return max(masters, default=0) + 1
 
 
 def enough_modes(state: RunState, labels: ModeLabels) -> Callable[[ModalBasis], bool]:

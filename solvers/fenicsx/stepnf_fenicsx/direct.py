@@ -2,9 +2,9 @@
 
 ``b`` and ``x`` are global vectors in the adapter's numbering, the same on every rank (a
 :class:`~stepnf_fenicsx.layout.RankBlocks` scatters and gathers them). A block ``b`` (n, k) goes to
-MUMPS in ONE ``MatMatSolve`` (distributed dense right-hand sides), so its forward and backward
-substitutions read the factors once for the k columns, as the serial core's
-:func:`stepnf.linalg.factor_block_solve` does: the lockstep conjugate gradients of the deflated solves
+MUMPS in ONE ``MatMatSolve`` (distributed dense right-hand sides, :func:`stepnf.linalg.factor_block_solve`,
+the serial core's too), so its forward and backward substitutions read the factors once for the k
+columns: the lockstep conjugate gradients of the deflated solves
 (:meth:`stepnf.deflation.DeflatedSolver.solve_many`) send their columns together. The solve declares
 this with ``takes_columns = True`` (:func:`stepnf.linalg.apply_columns` then passes blocks through)
 and frees what it owns with ``release()``, which stepnf calls when it no longer needs the
@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from stepnf.errors import NumericalError
+from stepnf.linalg import factor_block_solve
 
 
 class DirectSolve:
@@ -52,21 +53,10 @@ class DirectSolve:
         return self.layout.gather(x.array)
 
     def _block(self, rhs: np.ndarray) -> np.ndarray:
-        from petsc4py import PETSc
-
         lay = self.layout
-        n, k = rhs.shape
-        sizes = ((lay.n_owned, n), (PETSc.DECIDE, k))  # dense: each rank holds its rows of every column
-        B = PETSc.Mat().createDense(sizes, array=np.asfortranarray(lay.owned(rhs)), comm=lay.comm)
-        X = PETSc.Mat().createDense(sizes, comm=lay.comm)
-        try:
-            X.setUp()
-            self.ksp.getPC().getFactorMatrix().matSolve(B, X)
-            local = X.getDenseArray()
-            return np.column_stack([lay.gather(local[:, j]) for j in range(k)])
-        finally:
-            B.destroy()
-            X.destroy()
+        local = factor_block_solve(self.ksp.getPC().getFactorMatrix(), lay.owned(rhs), comm=lay.comm,
+                                   n_global=rhs.shape[0])
+        return np.column_stack([lay.gather(local[:, j]) for j in range(rhs.shape[1])])
 
     def release(self) -> None:
         """Destroy the factorisation's PETSc objects (collective); solving afterwards is an error."""
