@@ -120,7 +120,14 @@ class SolverAdapter(FromScene):
             raise NotImplementedError(
                 f"{type(self).__name__} implements neither _internal_force nor _internal_forces"
             )
-        return np.stack([self._internal_force(u) for u in U]) if len(U) else np.zeros((0, self.n_dofs))
+        out = np.empty((len(U), self.n_dofs))  # filled field by field: no list stacked afterwards
+        for i, u in enumerate(U):
+            f = self._internal_force(u)
+            if not (isinstance(f, np.ndarray) and f.shape == (self.n_dofs,) and f.dtype.kind in "fiu"):
+                # not a plain real field: everything as returned, for internal_forces' checks to name it
+                return np.stack([out[j] for j in range(i)] + [f] + [self._internal_force(v) for v in U[i + 1:]])
+            out[i] = f
+        return out
 
     # ------------------------------------------------------------- public API
     def internal_force(self, u: np.ndarray) -> np.ndarray:
@@ -202,6 +209,16 @@ class SolverAdapter(FromScene):
 
     def transverse_amplitude(self, phi: np.ndarray) -> float | None:
         """Largest transverse mid-surface displacement of a mode shape (for Gamma), or ``None``."""
+        return None
+
+    def transverse_displacements(self, Phi: np.ndarray) -> np.ndarray | None:
+        """The transverse mid-surface displacements (t, k) of the fields ``Phi`` (n, k), or ``None``.
+
+        Optional, for a model whose :meth:`transverse_amplitude` is the largest ``|w|`` over t points
+        with ``w`` linear in the field: then ``transverse_amplitude(phi) = max |w(phi)|``, and the
+        backbone's W_max/h over a period is computed on the t x k values at once instead of one call
+        of :meth:`transverse_amplitude` per phase. ``None`` (the default): not offered.
+        """
         return None
 
     def shell_scales(self) -> Any | None:

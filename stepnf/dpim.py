@@ -30,8 +30,9 @@ time derivative acts on ``cos(m theta)`` as ``-(m Omega)^2``, invariance
 ``G(x, x) + H(x, x, x)`` built from the orders below p:
 ``sum_q G(w_q, w_{p-q}) + sum_{a+b+c=p} H(w_a, w_b, w_c)`` with
 ``w_q(theta) = sum_m Y[q, m] cos(m theta)``; these are evaluated at
-J = #harmonics phase nodes (DCT-II/IV nodes, exact) by polarisation of f
-(:mod:`stepnf.polarisation`): one batched force call per order.
+J = (N + 1) / 2 phase nodes shared by every order (DCT-II/IV nodes, exact) by
+polarisation of f, each probe direction sent once for all orders
+(:mod:`stepnf.dpim_forcing`): one batched force call per order.
 At the resonant ``(p = 2k+1, m = 1)`` the left side is singular; its
 solvability ``phi^T rhs = 0`` gives ``S_k = phi^T F[p, 1]`` (with the
 normalisation ``phi^T M Y[p, 1] = 0``, p >= 3), hence ``c_k``, and ``Y[p, 1]``
@@ -60,7 +61,8 @@ from .counters import Counters
 from .dpim_backbone import Backbone
 from .dpim_solvers import FactorizationFactory, ShiftedSolves, Solve
 from .errors import NumericalError
-from .polarisation import ForceBatch, Polariser, count_evaluations
+from .dpim_forcing import OrderForcing, planned_evaluations as _planned
+from .polarisation import ForceBatch
 
 DENSE_SPECTRUM_LIMIT = 2000
 
@@ -161,7 +163,6 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
     if order < 3 or order % 2 == 0:
         raise ValueError(f"DPIM order must be odd and >= 3, got {order}")
     phi = np.asarray(phi, dtype=float)
-    n = len(phi)
     check_mode(K, M, phi, omega, master)
     counters = counters if counters is not None else Counters()
     flags = resonance_flags(K, M, omega, order, spectrum, master, twins, twin_index,
@@ -169,7 +170,7 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
     solves = ShiftedSolves(K, M, phi, omega, R=R, factory=factory, pinv=pinv, resonant=resonant,
                            deflated=deflated, counters=counters, backend=backend, master=master,
                            twins=twins, twin_index=twin_index, coupling=coupling, resonant_exclude=resonant_exclude)
-    pol = Polariser(forces, K, probe)
+    forcing = OrderForcing(forces, K, probe, order, shared_nodes(order))
     Msp = sp.csr_matrix(M) if sp.issparse(M) else np.asarray(M)
     Y: dict[tuple[int, int], np.ndarray] = {(1, 1): phi.copy()}
     MY: dict[tuple[int, int], np.ndarray] = {(1, 1): Msp @ phi}
@@ -178,9 +179,9 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
     counts: list[dict[str, Any]] = []
     for p in range(2, order + 1):
         t0 = time.perf_counter()
-        before = (pol.stats.force_evaluations, pol.stats.calls, counters.linear_solves, counters.factorizations,
-                  len(solves.shifts_factorised))
-        ms, F = nonlinear_forcing(pol, Y, p, n)
+        before = (forcing.stats.force_evaluations, forcing.stats.calls, counters.linear_solves,
+                  counters.factorizations, len(solves.shifts_factorised))
+        ms, F = forcing(Y, p)
         rhs = []
         for j, m in enumerate(ms):
             if m == 1:  # resonant: solvability gives S_k, then c_k
@@ -196,8 +197,8 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
         for m, y in zip(ms, solves.solve_many(list(zip(ms, rhs)))):
             Y[(p, m)] = y
             MY[(p, m)] = Msp @ y
-        counts.append({"order": p, "force_evaluations": pol.stats.force_evaluations - before[0],
-                       "force_calls": pol.stats.calls - before[1],
+        counts.append({"order": p, "force_evaluations": forcing.stats.force_evaluations - before[0],
+                       "force_calls": forcing.stats.calls - before[1],
                        "linear_solves": counters.linear_solves - before[2],
                        "factorizations": max(counters.factorizations - before[3],
                                              len(solves.shifts_factorised) - before[4]),
@@ -209,21 +210,9 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
 
 
 def planned_evaluations(order: int) -> list[int]:
-    """Force evaluations of orders 2..order (what :func:`dpim` will ask, before any zero-term shortcut).
-
-    Order p: at each of its J phase nodes, the pairs ``(w_q, w_{p-q})`` (4 evaluations, 2 when
-    q = p - q) and the triples ``a + b + c = p`` (8, 6 with a repeated order, 2 all equal).
-    """
-    out = []
-    for p in range(2, int(order) + 1):
-        J = len(phase_nodes(p)[0])
-        pd = sum(1 for q in range(1, p // 2 + 1) if q != p - q)
-        ps = 1 if p % 2 == 0 else 0
-        trip = [(a, b, p - a - b) for a in range(1, p // 3 + 1) for b in range(a, (p - a) // 2 + 1)]
-        cubes = sum(1 for t in trip if t[0] == t[2])
-        uuv = sum(1 for t in trip if t[0] != t[2] and (t[0] == t[1] or t[1] == t[2]))
-        out.append(J * count_evaluations(pd, ps, cubes, uuv, len(trip) - cubes - uuv))
-    return out
+    """Force evaluations of orders 2..order (what :func:`dpim` will ask, before any zero-vector shortcut):
+    :func:`stepnf.dpim_forcing.planned_evaluations`."""
+    return _planned(order)
 
 
 def check_mode(K, M, phi: np.ndarray, omega: float, master: int | None = None, tol: float = 1e-6) -> None:
@@ -253,42 +242,15 @@ def phase_nodes(p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return ms, theta, np.cos(np.outer(theta, ms))
 
 
-def nonlinear_forcing(pol: Polariser, Y: dict[tuple[int, int], np.ndarray], p: int,
-                      n: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(ms, F)``: ``F[j]`` the ``cos(ms[j] theta)`` coefficient of the ``rho^p`` part of G(x,x) + H(x,x,x).
+def shared_nodes(order: int) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """The phase nodes every order of a DPIM to odd ``order`` uses, and per parity the harmonics and basis.
 
-    One batched call of the forces: the pairs ``(w_q, w_{p-q})``, q <= p/2,
-    and the triples ``w_a, w_b, w_c`` (a <= b <= c, a + b + c = p) at each
-    phase node, weighted by their number of orderings.
+    ``(theta (J,), {0: (0, 2, .., N-1; B), 1: (1, 3, .., N; B)})``, J = (N + 1) / 2: the nodes of
+    :func:`phase_nodes` of orders N and N - 1 are the same, and each basis is square and orthogonal.
     """
-    ms, theta, B = phase_nodes(p)
-    w = {}
-    for q in range(1, p):
-        mq = np.arange(q % 2, q + 1, 2)
-        Yq = np.stack([Y[(q, m)] for m in mq])        # (Jq, n)
-        w[q] = np.cos(np.outer(theta, mq)) @ Yq         # (J, n): w_q at the nodes
-    pairs, wp = [], []
-    for q in range(1, p // 2 + 1):
-        for l in range(len(theta)):
-            u = w[q][l]
-            pairs.append((u, u) if q == p - q else (u, w[p - q][l]))
-            wp.append(1.0 if q == p - q else 2.0)
-    triples, wt = [], []
-    for a in range(1, p // 3 + 1):
-        for b in range(a, (p - a) // 2 + 1):
-            cc = p - a - b
-            mult = 1.0 if a == cc else (3.0 if (a == b or b == cc) else 6.0)
-            for l in range(len(theta)):
-                triples.append((w[a][l], w[b][l], w[cc][l]))
-                wt.append(mult)
-    Gs, Hs = pol.terms(pairs, triples)
-    J = len(theta)
-    Fn = np.zeros((J, n))
-    for i, wgt in enumerate(wp):
-        Fn[i % J] += wgt * Gs[i]
-    for i, wgt in enumerate(wt):
-        Fn[i % J] += wgt * Hs[i]
-    return ms, np.linalg.solve(B, Fn)
+    ms1, theta, B1 = phase_nodes(order)
+    ms0, _, B0 = phase_nodes(order - 1)  # the same nodes: pi (2l + 1) / (4J) for both parities
+    return theta, {0: (ms0, B0), 1: (ms1, B1)}
 
 
 def resonance_flags(K, M, omega: float, order: int, spectrum, master, twins, twin_index,

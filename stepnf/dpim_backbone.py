@@ -37,6 +37,7 @@ class Backbone:
             self.a[p, m] = float(Mphi @ y)
         self.theta = np.linspace(0.0, np.pi, 64 * self.N + 1)
         self._cos = np.cos(np.outer(np.arange(self.N + 1), self.theta))  # (m, theta)
+        self._transverse_kept: tuple | None = None  # (transverse, keys, parts) of _transverse_parts
 
     # ------------------------------------------------------------ frequency
     def frequency(self, rho: float | np.ndarray) -> np.ndarray | float:
@@ -88,9 +89,7 @@ class Backbone:
         grid (t x 64N values), then the largest one is refined by Newton.
         """
         keys = list(self.res.Y)
-        Ystack = np.column_stack([self.res.Y[k] for k in keys])  # (n, terms)
-        Tc = transverse(Ystack) if callable(transverse) else Ystack[np.asarray(transverse)]
-        Tc = np.asarray(Tc, dtype=float) * np.asarray([rho ** p for p, _ in keys])  # (t, terms)
+        Tc = self._transverse_parts(keys, transverse) * np.asarray([rho ** p for p, _ in keys])  # (t, terms)
         C = np.zeros((Tc.shape[0], self.N + 1))  # coefficient of cos(m theta) per transverse dof
         for j, (_, m) in enumerate(keys):
             C[:, m] += Tc[:, j]
@@ -98,6 +97,17 @@ class Backbone:
         i, j = np.unravel_index(int(np.argmax(np.abs(Wt))), Wt.shape)
         sign = np.sign(Wt[i, j]) or 1.0
         return _refine(sign * C[i], self.theta, int(j), maximise=True) / h
+
+    def _transverse_parts(self, keys: list, transverse: Transverse) -> np.ndarray:
+        """The transverse parts (t, terms) of the coefficients ``Y[k]``, ``k`` in ``keys``; kept for the
+        last ``transverse`` asked (they do not depend on rho)."""
+        kept = self._transverse_kept
+        if kept is not None and kept[0] is transverse and kept[1] == keys:
+            return kept[2]
+        Ystack = np.column_stack([self.res.Y[k] for k in keys])  # (n, terms)
+        Tc = np.asarray(transverse(Ystack) if callable(transverse) else Ystack[np.asarray(transverse)], dtype=float)
+        self._transverse_kept = (transverse, keys, Tc)
+        return Tc
 
     def w_max_at(self, A: float | Sequence[float], transverse: Transverse, h: float = 1.0) -> np.ndarray:
         """``W_max / h`` at the amplitudes ``A`` of ``q_p`` (see :meth:`w_max`)."""

@@ -9,7 +9,8 @@ probe scale ``s > 0``::
     H(u, u, v) = [H3(u+v) - H3(u-v) - 2 H3(v)] / 6              (6 evaluations)
     H(u, v, w) = (1/24) sum_{s2, s3 = +-1} s2 s3 H3(u + s2 v + s3 w)   (8 evaluations)
 
-All exact for a cubic f (round-off aside). Every field of one request goes
+All exact for a cubic f (round-off aside); the DPIM reuses these formulas with probe directions
+shared across its orders (:mod:`stepnf.dpim_forcing`). Every field of one request goes
 to the black box in ONE batched call ``forces(U)``, ``U`` of shape ``(m, n)``
 (one field per row: the convention of
 :meth:`stepnf.adapter.SolverAdapter.internal_forces` and of
@@ -18,9 +19,14 @@ to the black box in ONE batched call ``forces(U)``, ``U`` of shape ``(m, n)``
 **Scaling and round-off.** Multilinearity lets each term be computed on unit
 vectors: ``G(u, v) = |u| |v| G(u/|u|, v/|v|)``, so that polarisation never
 subtracts terms of very different sizes (without it, ``G(u, v)`` with
-``|v| << |u|`` would lose ``|u|/|v|`` digits). Each probe field ``z`` is then
-sent as ``s z`` with ``max_i |s z_i| = probe`` (a displacement in model
-units). With ``eps`` the relative precision of one force evaluation (1.1e-16
+``|v| << |u|`` would lose ``|u|/|v|`` digits). The probe fields ``z`` of one
+term are then sent as ``s z``, one ``s`` for all of them, with the largest
+``max_i |s z_i| = probe`` (a displacement in model units). With one ``s``
+per term, the linear parts ``s K z`` of the H3 values cancel in the term's
+sum (the fields' weights sum to the zero vector: ``(a+c) - (a-c) - 2c``,
+``sum s2 s3 (a + s2 b + s3 c)``), so ``K z`` is computed only for a lone
+``H(z, z, z)`` (a sparse product per field saved: it cost as much as the
+force evaluation on the 38k-dof cap). With ``eps`` the relative precision of one force evaluation (1.1e-16
 for an exact polynomial in float64; the solver's printed digits otherwise)
 and ``l = probe``, the absolute error of a recovered term is about::
 
@@ -30,8 +36,9 @@ i.e. relative to the term itself::
 
     G: eps (|K| / (|G| l) + 1 + |H| l / |G|)      H: eps (|K| / (|H| l^2) + |G| / (|H| l) + 1)
 
-(measured on a random 9-dof system with |K|, |G|, |H| ~ 10: G 3.6e-13 and H
-1.7e-10 at l = 1e-3, both ~5e-16 at l = 1, G 1.1e-13 at l = 1e3). The best
+(measured on a random 9-dof system with |K|, |G|, |H| ~ 10: G 7e-13 and H
+1.0e-9 at l = 1e-3, both ~2e-15 at l = 1, G 2.4e-13 at l = 1e3; with a scale
+per field and K z removed from each, 5e-13, 7.5e-10, 2e-15 and 2.5e-13). The best
 probe is of the order of the lengths ``|K|/|G|`` and ``sqrt(|K|/|H|)`` at
 which the nonlinear forces equal the linear one (a shell's thickness; STEP's
 amplitude). For an f that is not an exact cubic (shells with finite
@@ -91,31 +98,15 @@ class Polariser:
         One batched call of ``forces`` for everything. A pair ``(u, u)`` or a
         triple with repeated entries (the same object, or equal arrays) uses
         the cheaper formulas of the module docstring. Zero vectors give zero
-        terms without evaluation.
+        terms without evaluation. A vector given several times as the same
+        object is normalised once.
         """
-        fields: list[np.ndarray] = []   # unit-size probe directions z (before the +-s scaling)
-        odd: list[bool] = []            # H3 wanted (odd part) rather than G(z, z) (even part)
-        recipes_g: list[tuple[float, list[tuple[float, int]]]] = []
-        recipes_h: list[tuple[float, list[tuple[float, int]]]] = []
-
-        def probe(z: np.ndarray, want_odd: bool) -> int:
-            fields.append(z)
-            odd.append(want_odd)
-            return len(fields) - 1
-
-        for u, v in pairs:
-            (nu, u1), (nv, v1) = _unit(u), _unit(v)
-            if nu == 0 or nv == 0:
-                recipes_g.append((0.0, []))
-            elif _same(u1, v1):
-                recipes_g.append((nu * nv, [(1.0, probe(u1, False))]))
-            else:
-                recipes_g.append((nu * nv, [(0.25, probe(u1 + v1, False)), (-0.25, probe(u1 - v1, False))]))
-        for u, v, w in triples:
-            recipes_h.append(self._cubic_recipe(u, v, w, probe))
+        plan = _ProbePlan()
+        recipes_g = [self._quadratic_recipe(u, v, plan) for u, v in pairs]
+        recipes_h = [self._cubic_recipe(u, v, w, plan) for u, v, w in triples]
         self.stats.quadratic_terms += len(pairs)
         self.stats.cubic_terms += len(triples)
-        values = self._evaluate(fields, odd)
+        values = self._evaluate(plan)
         n = self._n(pairs, triples)
         return _combine(recipes_g, values, n), _combine(recipes_h, values, n)
 
@@ -129,48 +120,73 @@ class Polariser:
 
     # -------------------------------------------------------------- internals
     @staticmethod
-    def _cubic_recipe(u, v, w, probe) -> tuple[float, list[tuple[float, int]]]:
-        units = [_unit(x) for x in (u, v, w)]
+    def _quadratic_recipe(u, v, plan: "_ProbePlan") -> tuple[float, list[tuple[float, int]]]:
+        (nu, a), (nv, b) = plan.unit(u), plan.unit(v)
+        if nu == 0 or nv == 0:
+            return 0.0, []
+        if plan.same(a, b):
+            return nu * nv, [(1.0, plan.probe([(1.0, a)], False))]
+        plan.new_recipe()
+        return nu * nv, [(0.25, plan.probe([(1.0, a), (1.0, b)], False)),
+                         (-0.25, plan.probe([(1.0, a), (-1.0, b)], False))]
+
+    @staticmethod
+    def _cubic_recipe(u, v, w, plan: "_ProbePlan") -> tuple[float, list[tuple[float, int]]]:
+        units = [plan.unit(x) for x in (u, v, w)]
         scale = float(np.prod([s for s, _ in units]))
         if scale == 0:
             return 0.0, []
-        a, b, c = (x for _, x in units)
-        if _same(a, b) and _same(b, c):
-            return scale, [(1.0, probe(a, True))]
+        a, b, c = (j for _, j in units)
+        if plan.same(a, b) and plan.same(b, c):  # H3 alone: its K z is removed (linear=True)
+            return scale, [(1.0, plan.probe([(1.0, a)], True, linear=True))]
         # bring a repeated vector first: H(x, x, y)
-        if _same(a, c):
+        if plan.same(a, c):
             b, c = c, b
-        elif _same(b, c):
+        elif plan.same(b, c):
             a, c = c, a
-        if _same(a, b):  # H(a, a, c) = [H3(a + c) - H3(a - c) - 2 H3(c)] / 6
-            return scale, [(1 / 6, probe(a + c, True)), (-1 / 6, probe(a - c, True)), (-1 / 3, probe(c, True))]
-        return scale, [(wt, probe(a + s2 * b + s3 * c, True)) for wt, s2, s3 in _H_UVW]
+        plan.new_recipe()  # the fields of one recipe share one probe scale: their K z cancel in the sum
+        if plan.same(a, b):  # H(a, a, c) = [H3(a + c) - H3(a - c) - 2 H3(c)] / 6
+            return scale, [(1 / 6, plan.probe([(1.0, a), (1.0, c)], True)),
+                           (-1 / 6, plan.probe([(1.0, a), (-1.0, c)], True)),
+                           (-1 / 3, plan.probe([(1.0, c)], True))]
+        return scale, [(wt, plan.probe([(1.0, a), (s2, b), (s3, c)], True)) for wt, s2, s3 in _H_UVW]
 
-    def _evaluate(self, fields: list[np.ndarray], odd: list[bool]) -> np.ndarray:
-        """G(z, z) or H3(z) of every probe direction, from ONE call with the fields +-s z."""
-        if not fields:
+    def _evaluate(self, plan: "_ProbePlan") -> np.ndarray:
+        """G(z, z), or H3(z) (+ K z / s^2 where it cancels in its recipe), of every probe direction, from ONE
+        call with the fields +-s z; (fields, n), the rows of the call's own array."""
+        m = len(plan.directions)
+        if not m:
             return np.zeros((0, 0))
-        Z = np.asarray(fields)
-        peak = np.abs(Z).max(axis=1)
-        if np.any(peak == 0):  # u - v = 0 for two equal unit vectors given as different objects
-            peak = np.where(peak == 0, 1.0, peak)
-        s = self.probe / peak
-        U = np.concatenate([s[:, None] * Z, -s[:, None] * Z])
-        F = np.asarray(self.forces(U), dtype=float)
-        m = len(Z)
-        if F.shape != U.shape:
-            raise NumericalError(f"polarisation: forces returned shape {F.shape} for fields {U.shape}")
-        if not np.all(np.isfinite(F)):
-            raise NumericalError("polarisation: the internal forces contain NaN or inf")
-        self.stats.force_evaluations += len(U)
-        self.stats.calls += 1
-        self.stats.history.append(len(U))
-        fp, fm = F[:m], F[m:]
-        out = (fp + fm) / (2 * s[:, None] ** 2)  # G(z, z)
-        o = np.asarray(odd)
-        if o.any():
-            KZ = np.asarray(self.K @ Z[o].T).T
-            out[o] = (fp[o] - fm[o] - 2 * s[o, None] * KZ) / (2 * s[o, None] ** 3)
+        n = len(plan.units[0])
+        U = np.empty((2 * m, n))  # +s z, then -s z; the forces are written over it where the caller allows
+        peak = np.empty(m)
+        for i, combo in enumerate(plan.directions):
+            row = U[i]
+            np.multiply(plan.units[combo[0][1]], combo[0][0], out=row)
+            for coef, j in combo[1:]:
+                row += coef * plan.units[j]
+            peak[i] = np.abs(row).max()
+        group = np.asarray(plan.group)
+        top = np.zeros(int(group.max()) + 1)
+        np.maximum.at(top, group, peak)  # one scale per recipe (a zero field, u - v of equal u and v: 1)
+        s = self.probe / np.where(top == 0, 1.0, top)[group]
+        U[:m] *= s[:, None]
+        np.negative(U[:m], out=U[m:])
+        lin = np.flatnonzero(plan.linear)
+        KZ = np.asarray(self.K @ U[lin].T).T if lin.size else None  # K (s z) of the lone H3 fields
+        F = probe_forces(self.forces, U, self.stats)
+        out, fm = F[:m], F[m:]
+        k = 0
+        for i in range(m):  # row by row, in place: no (m, n) temporaries
+            if plan.odd[i]:
+                out[i] -= fm[i]
+                if plan.linear[i]:
+                    out[i] -= 2.0 * KZ[k]
+                    k += 1
+                out[i] *= 1.0 / (2.0 * s[i] ** 3)  # H3(z) [+ K z / s^2, cancelled by its recipe]
+            else:
+                out[i] += fm[i]
+                out[i] *= 1.0 / (2.0 * s[i] ** 2)  # G(z, z)
         return out
 
     @staticmethod
@@ -179,15 +195,79 @@ class Polariser:
         return 0 if first is None else len(first[0])
 
 
+class _ProbePlan:
+    """The probe directions of one request, each a short combination of unit input vectors.
+
+    ``units``: the inputs scaled to a peak of 1, each object once; ``directions[i]``: ``[(coef, unit)]``;
+    ``odd[i]``: H3 wanted (else G(z, z)); ``linear[i]``: its ``K z`` removed (a lone H3; in the other
+    recipes the ``K z`` of the fields sum to zero: ``(a+c) - (a-c) - 2c = 0``, ``sum s2 s3 (a + s2 b + s3 c)
+    = 0``); ``group[i]``: the recipe it serves, whose fields share one probe scale.
+    """
+
+    def __init__(self):
+        self.units: list[np.ndarray] = []
+        self._ids: dict[int, tuple[float, int]] = {}
+        self._keep: list[np.ndarray] = []  # the inputs whose ids are keys (alive while the plan is)
+        self.directions: list[list[tuple[float, int]]] = []
+        self.odd: list[bool] = []
+        self.linear: list[bool] = []
+        self.group: list[int] = []
+        self._recipe = -1
+
+    def unit(self, x: np.ndarray) -> tuple[float, int]:
+        """``(|x|_inf, index of x / |x|_inf in units)``; ``(0, -1)`` for a zero vector."""
+        kept = self._ids.get(id(x))
+        if kept is not None:
+            return kept
+        nx, u = _unit(x)
+        out = (nx, -1)
+        if nx > 0:
+            self.units.append(u)
+            out = (nx, len(self.units) - 1)
+        self._ids[id(x)] = out
+        self._keep.append(x)
+        return out
+
+    def same(self, i: int, j: int) -> bool:
+        return i == j or np.array_equal(self.units[i], self.units[j])
+
+    def new_recipe(self) -> None:
+        self._recipe += 1
+
+    def probe(self, combo: list[tuple[float, int]], odd: bool, *, linear: bool = False) -> int:
+        """A probe direction (``new_recipe`` first for a recipe of several fields); its index."""
+        if len(combo) == 1 and (linear or not odd):
+            self.new_recipe()  # a field alone: its own scale
+        self.directions.append(combo)
+        self.odd.append(odd)
+        self.linear.append(linear)
+        self.group.append(self._recipe)
+        return len(self.directions) - 1
+
+
+def probe_forces(forces: ForceBatch, U: np.ndarray, stats: PolarisationStats) -> np.ndarray:
+    """The internal forces of the probe fields ``U`` (m, n) in ONE call, checked and counted in ``stats``.
+
+    A ``forces`` with ``accepts_out`` (:class:`stepnf.step.ForceEvaluator`) writes them over ``U``.
+    NumericalError for a wrong shape or a NaN / inf.
+    """
+    F = forces(U, out=U) if getattr(forces, "accepts_out", False) else forces(U)
+    F = np.asarray(F, dtype=float)
+    if F.shape != U.shape:
+        raise NumericalError(f"polarisation: forces returned shape {F.shape} for fields {U.shape}")
+    if not np.all(np.isfinite(F)):
+        raise NumericalError("polarisation: the internal forces contain NaN or inf")
+    stats.force_evaluations += len(U)
+    stats.calls += 1
+    stats.history.append(len(U))
+    return F
+
+
 def _unit(x: np.ndarray) -> tuple[float, np.ndarray]:
     """(|x|_inf, x / |x|_inf), (0, x) for a zero vector."""
     x = np.asarray(x, dtype=float)
     nx = float(np.abs(x).max()) if x.size else 0.0
     return (nx, x / nx) if nx > 0 else (0.0, x)
-
-
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    return a is b or np.array_equal(a, b)
 
 
 def _combine(recipes: list[tuple[float, list[tuple[float, int]]]], values: np.ndarray, n: int) -> np.ndarray:

@@ -71,10 +71,24 @@ class ForceEvaluator:
         self.batch_size = max(1, int(batch_size))
         self.checkpoint = checkpoint
 
+    #: :meth:`__call__` takes ``out=`` (the forces written into a given array, e.g. ``U`` itself).
+    accepts_out = True
+
     def __call__(self, U: np.ndarray, *, plan: str | None = None,
-                 reduce: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
+                 reduce: Callable[[np.ndarray], np.ndarray] | None = None,
+                 out: np.ndarray | None = None) -> np.ndarray:
+        """Forces (m, n) of the fields ``U`` (m, n), or ``reduce`` of them (chunk by chunk, concatenated).
+
+        ``out`` (m, n), without ``reduce``: the forces are written there, chunk by chunk; it may be
+        ``U`` itself (each chunk's fields are read, and checkpointed, before its forces replace them),
+        so that a large request holds one (m, n) array instead of two.
+        """
         U = np.atleast_2d(np.asarray(U, dtype=float))
-        out = []
+        if out is not None and (reduce is not None or out.shape != U.shape):
+            raise ValueError(f"out= takes the forces of the fields {U.shape} without reduce; got {out.shape}")
+        if out is None and reduce is None:
+            out = np.empty_like(U)  # filled chunk by chunk: no list of chunks concatenated afterwards
+        parts = []
         for i, start in enumerate(range(0, len(U), self.batch_size)):
             chunk = U[start:start + self.batch_size]
             cp = self.checkpoint if plan is not None else None
@@ -87,10 +101,13 @@ class ForceEvaluator:
                     res = reduce(res)
                 if cp is not None:
                     cp.store(plan, i, chunk, res)
-            out.append(res)
-        if out:
-            return np.concatenate(out, axis=0)
-        return np.zeros((0, self.n)) if reduce is None else reduce(np.zeros((0, self.n)))
+            if reduce is None:
+                out[start:start + len(chunk)] = res
+            else:
+                parts.append(res)
+        if reduce is None:
+            return out
+        return np.concatenate(parts, axis=0) if parts else reduce(np.zeros((0, self.n)))
 
 
 def step_amplitude(phi: np.ndarray, policy: StepPolicy, length: float | None,

@@ -14,7 +14,8 @@ equals ``K`` (central differences, error O(eps^2) for a cubic f); the batch
 equals the loop; STEP recovers the intrusive tensors where the adapter offers
 them; the force is conservative (its tangent at a nonzero field is symmetric,
 probed by finite differences); ``dof_coordinates`` and ``dof_directions`` have
-one finite entry per dof; the declared ``[model]`` keys are well formed;
+one finite entry per dof; ``transverse_displacements``, where offered, is
+linear and agrees with ``transverse_amplitude``; the declared ``[model]`` keys are well formed;
 ``from_config`` builds the adapter from a ``[model]`` table (the scene's, or the
 documented defaults) and the defaults it documents are the ones it applies.
 Tolerances are relative and can be loosened per adapter for solvers that
@@ -31,109 +32,25 @@ computes) is a failed check there, with the exception as the reason.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
-import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
-import scipy.sparse as sp
 
 from .adapter import DIRECTIONS, SolverAdapter
-from .errors import SceneError
-from .schema import KINDS, Key, Schema
+from .testing_base import CheckResult, CheckSkipped, Tolerances, maxabs, random_fields
+from .testing_model import check_from_config, check_model_keys
 
-
-@dataclass(frozen=True)
-class Tolerances:
-    """Relative tolerances of the checks.
-
-    ``symmetry``: ``|A - A^T| <= symmetry * |A|`` (max norms);
-    ``zero_force``: ``|f(0)| <= zero_force * |K|`` times a unit field;
-    ``slope``: central-difference slope against ``K u``;
-    ``batch``: batch against loop; ``step``: STEP against intrusive tensors;
-    ``conservative``: asymmetry of the nonlinear part of the tangent (see
-    :func:`check_conservative_force`); ``None`` derives it from ``batch``.
-    """
-
-    symmetry: float = 1e-10
-    zero_force: float = 1e-10
-    slope: float = 1e-6
-    batch: float = 1e-12
-    step: float = 1e-7
-    conservative: float | None = None
-
-    def conservative_tolerance(self) -> float:
-        """``conservative``, or ``max(1e-6, 1e3 * batch)``: ``batch`` is the relative round-off of
-        one force (1e-12 in process, 1e-6 for a solver printing 7 digits); the asymmetry divides
-        differences of forces by the step (0.1) and by the nonlinear share of the tangent (~0.1 at
-        an amplitude of 0.1 length), so its noise is ~100x that round-off; x10 on top is the margin.
-        1e-6 is the floor in process (noise ~1e-13): a non-conservative force (a wrong stress
-        measure) is asymmetric at the 1e-2 .. 1 level, far above either."""
-        return self.conservative if self.conservative is not None else max(1e-6, 1e3 * self.batch)
-
-
-class CheckSkipped(Exception):
-    """A check does not apply to this adapter; the message says why."""
-
-
-@dataclass(frozen=True)
-class CheckResult:
-    """The outcome of one check: ``status`` is ``"passed"``, ``"failed"`` or ``"skipped"``."""
-
-    name: str
-    status: str
-    reason: str = ""
-
-    @property
-    def passed(self) -> bool:
-        return self.status == "passed"
-
-
-def _maxabs(A) -> float:
-    return float(abs(A).max()) if sp.issparse(A) else float(np.max(np.abs(A)))
-
-
-def _random_fields(adapter: SolverAdapter, k: int, seed: int = 1, per_direction: bool = False) -> np.ndarray:
-    """Smooth random fields scaled to the characteristic length (small strains).
-
-    With dof coordinates: quadratic polynomials of the position; ``per_direction``: with independent
-    coefficients for every direction (:meth:`~stepnf.adapter.SolverAdapter.dof_directions`; without
-    directions, dof ``i`` takes those of ``i % 3``, a node-major guess). The same polynomial in every
-    direction moves every node along (1, 1, 1): every bar of a truss then stretches along one line, and a
-    non-conservative force can look symmetric (:func:`check_conservative_force` asks for them)."""
-    rng = np.random.default_rng(seed)
-    n = adapter.n_dofs
-    L = adapter.characteristic_length() or 1.0
-    U = rng.standard_normal((k, n))
-    X = adapter.dof_coordinates()
-    if X is not None:  # low-order polynomial fields in space: rigid-ish, realistic strains
-        X = np.asarray(X, float)
-        c = X - X.mean(0)
-        span = max(np.ptp(X, axis=0).max(), 1e-300)
-        basis = np.column_stack([np.ones(n), c / span, (c / span) ** 2])
-        if not per_direction:
-            return _scaled(rng.standard_normal((k, basis.shape[1])) @ basis.T, L)
-        dirs = adapter.dof_directions()
-        code = np.arange(n) % 3
-        if dirs is not None and np.shape(dirs) == (n,):  # else check_dof_directions reports it
-            code = np.clip(np.nan_to_num(np.asarray(dirs, dtype=float)), 0, len(DIRECTIONS) - 1).astype(int)
-        coef = rng.standard_normal((k, len(DIRECTIONS), basis.shape[1]))
-        U = np.einsum("kib,ib->ki", coef[:, code, :], basis)
-    return _scaled(U, L)
-
-
-def _scaled(U: np.ndarray, L: float) -> np.ndarray:
-    """Each row of ``U`` scaled to a largest entry of 1% of the length ``L``."""
-    return 1e-2 * L * U / np.max(np.abs(U), axis=1, keepdims=True)
+__all__ = ["CHECKS", "CheckResult", "CheckSkipped", "Tolerances", "adapter_checks", "check_from_config",
+           "check_model_keys", "parametrize_with_checks", "run_checks"]
 
 
 def check_symmetric_matrices(adapter: SolverAdapter, tol: Tolerances) -> None:
     for name, A in (("M", adapter.mass_matrix()), ("K", adapter.stiffness_matrix())):
         n = adapter.n_dofs
         assert A.shape == (n, n), f"{name} has shape {A.shape}, expected ({n}, {n})"
-        asym = _maxabs(A - A.T)
-        assert asym <= tol.symmetry * _maxabs(A), f"{name} is not symmetric: max|A - A^T| = {asym:.3e}"
+        asym = maxabs(A - A.T)
+        assert asym <= tol.symmetry * maxabs(A), f"{name} is not symmetric: max|A - A^T| = {asym:.3e}"
     dM = np.asarray(adapter.mass_matrix().diagonal()).ravel()
     assert np.all(dM > 0), "M has non-positive diagonal entries"
 
@@ -141,13 +58,13 @@ def check_symmetric_matrices(adapter: SolverAdapter, tol: Tolerances) -> None:
 def check_zero_force(adapter: SolverAdapter, tol: Tolerances) -> None:
     f0 = adapter.internal_force(np.zeros(adapter.n_dofs))
     L = adapter.characteristic_length() or 1.0
-    scale = _maxabs(adapter.stiffness_matrix()) * L
+    scale = maxabs(adapter.stiffness_matrix()) * L
     assert np.max(np.abs(f0)) <= tol.zero_force * scale, f"f(0) != 0: max|f(0)| = {np.max(np.abs(f0)):.3e}"
 
 
 def check_slope_equals_K(adapter: SolverAdapter, tol: Tolerances) -> None:
     K = adapter.stiffness_matrix()
-    for u in _random_fields(adapter, 2, seed=2):
+    for u in random_fields(adapter, 2, seed=2):
         eps = 1e-3
         F = adapter.internal_forces(np.stack([eps * u, -eps * u]))
         slope = (F[0] - F[1]) / (2 * eps)  # = K u + eps^2 H(u,u,u)
@@ -157,7 +74,7 @@ def check_slope_equals_K(adapter: SolverAdapter, tol: Tolerances) -> None:
 
 
 def check_batch_equals_loop(adapter: SolverAdapter, tol: Tolerances) -> None:
-    U = _random_fields(adapter, 3, seed=3)
+    U = random_fields(adapter, 3, seed=3)
     Fb = adapter.internal_forces(U)
     Fl = np.stack([adapter.internal_force(u) for u in U])
     err = np.max(np.abs(Fb - Fl)) / max(np.max(np.abs(Fl)), 1e-300)
@@ -171,7 +88,7 @@ def check_step_equals_intrusive(adapter: SolverAdapter, tol: Tolerances) -> None
     from .step import ForceEvaluator, StepPolicy, targeted_step
 
     K = adapter.stiffness_matrix()
-    u = _random_fields(adapter, 1, seed=4)[0] * 10
+    u = random_fields(adapter, 1, seed=4)[0] * 10
     ev = ForceEvaluator(adapter.internal_forces, adapter.n_dofs, Counters())
     q = 1.0
     res = targeted_step(ev, K, u, q, StepPolicy(check=False))
@@ -220,8 +137,8 @@ def check_conservative_force(adapter: SolverAdapter, tol: Tolerances) -> None:
     n = adapter.n_dofs
     if n < 2:
         raise CheckSkipped("a single dof: every tangent is symmetric")
-    u = 10 * _random_fields(adapter, 1, seed=5, per_direction=True)[0]
-    V = 10 * _random_fields(adapter, 3, seed=6, per_direction=True)
+    u = 10 * random_fields(adapter, 1, seed=5, per_direction=True)[0]
+    V = 10 * random_fields(adapter, 3, seed=6, per_direction=True)
     KV = (adapter.stiffness_matrix() @ V.T).T
     limit = tol.conservative_tolerance()
     asym = _asymmetry(V, _nonlinear_products(adapter, u, V, 0.1), KV)
@@ -258,107 +175,27 @@ def check_dof_directions(adapter: SolverAdapter, tol: Tolerances) -> None:
                            f"e.g. {d[bad][:5].tolist()}")
 
 
-def check_model_keys(adapter: SolverAdapter, tol: Tolerances) -> None:
-    """The declared ``[model]`` keys are a :class:`Schema` of valid :class:`Key` s whose defaults pass their
-    own check (and, with no required key, the schema's check as one table). ``validate_config`` is not
-    called: its checks across keys ("a mesh or a deck") may refuse any table of defaults alone."""
-    cls = type(adapter)
-    schema = cls.model_schema()
-    if schema is None:
-        raise CheckSkipped(f"{cls.__name__} declares no [model] keys (model_schema() is None)")
-    assert isinstance(schema, Schema), f"model_schema() returned {type(schema).__name__}, expected a Schema"
-    defaults, bad = {}, []
-    with tempfile.TemporaryDirectory() as base:
-        for key in schema:
-            if not isinstance(key, Key) or key.kind not in KINDS:
-                bad.append(f"{key!r}: not a Key of a known kind")
-            elif key.default is not None and key.kind not in ("file", "folder"):  # those must exist
-                try:
-                    key.check(key.default, file=None, where="model", base_dir=base)
-                    defaults[key.name] = key.default
-                except SceneError as exc:
-                    bad.append(f"default of {key.name!r}: {exc}")
-        if not bad and not any(k.required for k in schema):  # the defaults together, as a [model] table
-            try:
-                schema.check(defaults, where="model", base_dir=base, reserved=("solver",))
-            except SceneError as exc:
-                bad.append(f"the defaults together {defaults}: {exc}")
-    assert not bad, "the declared [model] keys are broken: " + "; ".join(bad)
-
-
-def _documented_defaults(schema: Schema, given: Mapping[str, Any]) -> dict[str, Any]:
-    """The declared defaults of the keys ``given`` leaves out (files and folders excepted: they must exist)."""
-    return {k.name: k.default for k in schema
-            if k.default is not None and k.kind not in ("file", "folder") and k.name not in given}
-
-
-def _same_model(a: SolverAdapter, b: SolverAdapter, tol: Tolerances) -> str:
-    """'' when ``a`` and ``b`` have the same dofs, K, M and force at one field, else what differs."""
-    if a.n_dofs != b.n_dofs:
-        return f"{a.n_dofs} dofs against {b.n_dofs}"
-    for name, A, B in (("K", a.stiffness_matrix(), b.stiffness_matrix()), ("M", a.mass_matrix(), b.mass_matrix())):
-        diff = _maxabs(A - B) / max(_maxabs(A), 1e-300)
-        if diff > tol.batch:
-            return f"{name} differs by {diff:.3e} (relative)"
-    u = _random_fields(a, 1, seed=7)
-    fa, fb = a.internal_forces(u), b.internal_forces(u)
-    diff = float(np.max(np.abs(fa - fb))) / max(float(np.max(np.abs(fa))), 1e-300)
-    return f"the internal force differs by {diff:.3e} (relative)" if diff > tol.batch else ""
-
-
-def check_from_config(adapter: SolverAdapter, tol: Tolerances, config: Mapping[str, Any] | None = None,
-                      base_dir: str | Path | None = None) -> None:
-    """``from_config`` builds an adapter from a ``[model]`` table, and its documented defaults hold.
-
-    The table is ``config`` (a scene's ``[model]`` without ``solver``; paths from ``base_dir``), else the
-    empty one. It must build an adapter (a SceneError for a given table, or any other exception, fails);
-    completed with the defaults the keys *document* (``Key.default``: shown, never applied by stepnf) it
-    must build the same model (dofs, K, M, the force at one field, to ``batch``). Skipped without declared
-    keys, with a required key and no table, or when the defaults alone are refused with a message (checks
-    across keys: "a mesh or a geometry"). Every adapter built is closed.
-    """
-    cls = type(adapter)
-    schema = cls.model_schema()
-    if config is None:
-        if schema is None:
-            raise CheckSkipped(f"{cls.__name__} declares no [model] keys: give the harness a [model] table "
-                               "(config=) to check from_config")
-        required = [k.name for k in schema if k.required]
-        if required:
-            raise CheckSkipped(f"{cls.__name__} has required [model] keys {required}: give the harness a [model] "
-                               "table (config=) to check from_config")
-    table = dict(config or {})
-    with tempfile.TemporaryDirectory() as tmp:
-        base = Path(base_dir) if base_dir is not None else Path(tmp)
-        built: list[SolverAdapter] = []
-
-        def build(cfg: Mapping[str, Any], what: str) -> SolverAdapter:
-            try:
-                model = cls.from_config(cfg, base_dir=base, scene_file=None)
-            except SceneError as exc:
-                if config is None and not built:
-                    raise CheckSkipped(f"the defaults alone make no model ({exc}): give the harness a [model] "
-                                       "table (config=) to check from_config") from None
-                raise AssertionError(f"from_config refused {what}: {exc}") from None
-            except Exception as exc:  # noqa: BLE001 - what a user would meet as an AdapterError
-                raise AssertionError(f"from_config raised {type(exc).__name__} on {what} (a user would get no message "
-                                     f"naming a key): {exc}") from None
-            assert isinstance(model, SolverAdapter), f"from_config returned {type(model).__name__}, not an adapter"
-            built.append(model)
-            assert model.n_dofs >= 1, f"from_config built a model with {model.n_dofs} dofs"
-            return model
-
-        try:
-            first = build(table, f"the [model] table {table}")
-            defaults = _documented_defaults(schema, table) if schema is not None else {}
-            if defaults:
-                full = {**table, **defaults}
-                differs = _same_model(first, build(full, f"the table completed with its documented defaults {full}"), tol)
-                assert not differs, (f"the documented defaults {defaults} are not the ones from_config applies: "
-                                     f"{differs}; make Key(default=...) match the constructor")
-        finally:
-            for model in built:
-                model.close()
+def check_transverse_displacements(adapter: SolverAdapter, tol: Tolerances) -> None:
+    """``transverse_displacements`` (when offered) is linear in the fields, takes columns one by one or
+    together, and its largest ``|w|`` is ``transverse_amplitude`` (the backbone uses one for the other)."""
+    U = random_fields(adapter, 2, seed=5).T  # (n, 2)
+    W = adapter.transverse_displacements(U)
+    if W is None:
+        raise CheckSkipped("the adapter offers no transverse_displacements (None)")
+    W = np.asarray(W)
+    assert W.ndim == 2 and W.shape[1] == 2 and np.all(np.isfinite(W)), \
+        f"transverse_displacements of (n, 2) fields gave shape {W.shape} (or non-finite values); expected (t, 2)"
+    scale = max(float(np.max(np.abs(W))), 1e-300)
+    one = np.column_stack([np.asarray(adapter.transverse_displacements(U[:, [j]]))[:, 0] for j in range(2)])
+    mix = np.asarray(adapter.transverse_displacements(U @ np.array([[2.0], [-3.0]])))[:, 0]
+    err = max(float(np.max(np.abs(one - W))), float(np.max(np.abs(mix - (2 * W[:, 0] - 3 * W[:, 1]))) / 5))
+    assert err <= tol.batch * scale, f"transverse_displacements is not linear column by column ({err / scale:.2e})"
+    for j in range(2):
+        peak = adapter.transverse_amplitude(U[:, j])
+        if peak is not None:
+            ref = float(np.max(np.abs(W[:, j])))
+            assert abs(peak - ref) <= tol.batch * scale, (
+                f"transverse_amplitude = {peak:.9g} but max |transverse_displacements| = {ref:.9g}")
 
 
 CHECKS: dict[str, Callable[[SolverAdapter, Tolerances], None]] = {
@@ -370,6 +207,7 @@ CHECKS: dict[str, Callable[[SolverAdapter, Tolerances], None]] = {
     "conservative_force": check_conservative_force,
     "dof_coordinates": check_dof_coordinates,
     "dof_directions": check_dof_directions,
+    "transverse_displacements": check_transverse_displacements,
     "model_keys": check_model_keys,
     "from_config": check_from_config,
 }

@@ -52,6 +52,12 @@ class DuffingChain(SolverAdapter):
     def characteristic_length(self):
         return 1.0
 
+    def transverse_displacements(self, Phi):
+        return np.asarray(Phi, dtype=float)  # every dof is a transverse (uy) displacement
+
+    def transverse_amplitude(self, phi):
+        return float(np.max(np.abs(phi)))
+
 
 class NonConservativeChain(DuffingChain):
     """The chain plus EPS * A u^3 (A antisymmetric): f(0) = 0, slope K and batch = loop all still hold."""
@@ -124,6 +130,22 @@ def test_out_of_range_direction_codes_fail():
             return np.full(self.n, 6)
 
     assert statuses(BadCodes)["dof_directions"] == "failed"
+
+
+def test_transverse_displacements_must_be_linear_and_match_the_amplitude():
+    class Squared(DuffingChain):
+        def transverse_displacements(self, Phi):
+            return np.asarray(Phi) ** 2  # not linear
+
+    class Halved(DuffingChain):
+        def transverse_amplitude(self, phi):
+            return 0.5 * float(np.max(np.abs(phi)))  # not the peak of the displacements
+
+    res = {r.name: r for r in run_checks(Squared)}
+    assert res["transverse_displacements"].status == "failed" and "not linear" in res["transverse_displacements"].reason
+    res = {r.name: r for r in run_checks(Halved)}
+    assert res["transverse_displacements"].status == "failed"
+    assert "transverse_amplitude" in res["transverse_displacements"].reason
 
 
 def test_checks_that_do_not_apply_are_skipped_with_a_reason():

@@ -112,7 +112,8 @@ def test_the_adapter_passes_every_check(truss):
     config = scene_model()
     res = run_checks(lambda: truss.TrussAdapter.from_config(config, base_dir=PLUGIN), config=config,
                      base_dir=PLUGIN)
-    assert [r.name for r in res if r.status != "passed"] == [], res
+    # every check passes but the transverse map's, which a truss does not offer (skipped, with the reason)
+    assert [(r.name, r.status) for r in res if r.status != "passed"] == [("transverse_displacements", "skipped")], res
 
 
 def load_plugin_tests():

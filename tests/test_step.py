@@ -136,3 +136,24 @@ def test_full_step_matches_targeted_on_diagonal():
         ts = targeted_step(ForceEvaluator(adapter.internal_forces, 6, Counters()), K, Phi[:, p], q[p], policy, p=p)
         np.testing.assert_allclose(fs.g[:, p, p], Phi.T @ ts.Gv, rtol=0, atol=RTOL_STEP * np.abs(ts.Gv).max())
         assert fs.h[p, p, p, p] == pytest.approx(ts.h, rel=RTOL_STEP)
+
+
+def test_force_evaluator_writes_over_the_fields_chunk_by_chunk_and_checkpoints_the_fields(tmp_path):
+    """``out=U``: each chunk's fields are read and fingerprinted before its forces replace them, so the
+    forces equal those of a fresh array (the same function on the same rows: bit for bit) and a rerun from the
+    checkpoint finds the chunks of the same fields."""
+    from stepnf.checkpoint import Checkpoint
+
+    rng = np.random.default_rng(4)
+    U = rng.standard_normal((7, 5))
+    f = lambda X: np.sin(X) * 2.0  # noqa: E731 - any per-row function
+    ref = ForceEvaluator(f, 5, Counters(), batch_size=3)(U.copy())
+    cp = Checkpoint(tmp_path / ".s.partial")
+    work = U.copy()
+    out = ForceEvaluator(f, 5, Counters(), batch_size=3, checkpoint=cp)(work, plan="p", out=work)
+    assert out is work and np.array_equal(out, ref)
+    again = Counters()
+    reused = ForceEvaluator(lambda X: 1 / 0, 5, again, batch_size=3, checkpoint=cp)(U.copy(), plan="p")
+    assert np.array_equal(reused, ref) and again.force_evaluations == 0  # every chunk found by its fields
+    with pytest.raises(ValueError, match="out="):
+        ForceEvaluator(f, 5, Counters())(U, out=np.empty((2, 5)))

@@ -63,12 +63,14 @@ def second_slot(state: RunState) -> Slot:
 class PlannedForces:
     """``forces(U)`` for :mod:`stepnf.polarisation`: each call a named checkpoint plan (``backbone_<p>_<k>``)."""
 
+    accepts_out = True  # ``out=`` as :class:`~stepnf.step.ForceEvaluator`: the forces may replace the fields
+
     def __init__(self, evaluator: ForceEvaluator, p: int):
         self.evaluator, self.p, self.calls = evaluator, p, 0
 
-    def __call__(self, U: np.ndarray) -> np.ndarray:
+    def __call__(self, U: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
         self.calls += 1
-        return self.evaluator(U, plan=f"backbone_{self.p}_{self.calls}")
+        return self.evaluator(U, plan=f"backbone_{self.p}_{self.calls}", out=out)
 
 
 def w_max_measure(state: RunState) -> WMax | None:
@@ -80,8 +82,14 @@ def w_max_measure(state: RunState) -> WMax | None:
     if state.scene.transverse is not None and state.dirs is not None:
         op = transverse_operator(state.X, state.dirs, state.scene.transverse)
         return WMax(g.thickness, linear=op) if op is not None else None
-    probe = g.amplitude(state.phi[:, state.masters[0]])
-    return WMax(g.thickness, peak=g.amplitude) if probe is not None and probe > 0 else None
+    phi = state.phi[:, state.masters[0]]
+    probe = g.amplitude(phi)
+    if probe is None or not probe > 0:
+        return None
+    if g.amplitude == state.adapter.transverse_amplitude and state.adapter.transverse_displacements(
+            phi[:, None]) is not None:  # the same peak, all phases at once
+        return WMax(g.thickness, linear=state.adapter.transverse_displacements)
+    return WMax(g.thickness, peak=g.amplitude)
 
 
 def spectrum_flag(state: RunState, p: int, order: int) -> dict | None:

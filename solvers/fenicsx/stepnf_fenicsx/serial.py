@@ -249,10 +249,14 @@ class FenicsxAdapter(FormsAdapter):
         return self._expand(np.asarray(phi, dtype=float)).reshape(-1, 3)
 
     def transverse_amplitude(self, phi: np.ndarray) -> float:
+        return float(np.max(np.abs(self.transverse_displacements(np.asarray(phi)[:, None]))))
+
+    def transverse_displacements(self, Phi: np.ndarray) -> np.ndarray:
+        """Normal displacements (mid-surface nodes, k) of the fields ``Phi`` (n, k): the dof nodes' ``u . n``."""
+        Phi = np.asarray(Phi, dtype=float)
         mid = self._midsurface_nodes()
-        U = self._node_displacements(phi)[mid]
-        w = np.einsum("ij,ij->i", U, self._midsurface_normals())
-        return float(np.max(np.abs(w)))
+        U = np.stack([self._node_displacements(Phi[:, j])[mid] for j in range(Phi.shape[1])], axis=-1)
+        return np.einsum("ijk,ij->ik", U, self._midsurface_normals())
 
     def mode_labels(self, Phi: np.ndarray) -> list[Any]:
         """(k, n) of each mode; with the rim held (:meth:`edge_is_held`) n counts the edge as a nodal circle
