@@ -68,6 +68,22 @@ def test_volume_and_dof_layout(cap):
     assert np.abs(cap.stiffness_matrix() @ rot).max() <= 1e-11 * abs(cap.stiffness_matrix()).max() * A
 
 
+def test_matrices_copied_from_petsc_in_one_piece_equal_the_row_by_row_copy(cap):
+    """``_compat.csr_copy`` (index arrays and one value copy) gives the matrix ``getValuesCSR`` reads row by
+    row: the same arrays, bit for bit (no arithmetic between them)."""
+    from dolfinx.fem import petsc
+
+    from stepnf_fenicsx import _compat
+
+    A = petsc.assemble_matrix(cap._forms.K_form)
+    A.assemble()
+    indptr, indices, data = A.getValuesCSR()
+    B = _compat.csr_copy(A)
+    A.destroy()
+    assert np.array_equal(B.indptr, indptr) and np.array_equal(B.indices, indices)
+    assert np.array_equal(B.data, data) and B.nnz == len(data) > 0
+
+
 def test_internal_force_is_the_cubic_of_the_intrusive_tensors(cap):
     rng = np.random.default_rng(7)
     K = cap.stiffness_matrix()
