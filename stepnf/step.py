@@ -93,8 +93,13 @@ class ForceEvaluator:
             chunk = U[start:start + self.batch_size]
             cp = self.checkpoint if plan is not None else None
             res = cp.load(plan, i, chunk) if cp is not None else None
+            if res is not None and reduce is None and res.shape != chunk.shape:
+                res = None  # a stored chunk of another shape is not these forces: computed again
             if res is None:
                 res = np.asarray(self._forces(chunk), dtype=float)
+                if reduce is None and res.shape != chunk.shape:
+                    raise NumericalError(f"the solver returned forces of shape {res.shape} for {chunk.shape} "
+                                         "displacement fields")
                 self.counters.force_evaluations += len(chunk)
                 self.counters.solver_runs += 1
                 if reduce is not None:

@@ -157,3 +157,12 @@ def test_force_evaluator_writes_over_the_fields_chunk_by_chunk_and_checkpoints_t
     assert np.array_equal(reused, ref) and again.force_evaluations == 0  # every chunk found by its fields
     with pytest.raises(ValueError, match="out="):
         ForceEvaluator(f, 5, Counters())(U, out=np.empty((2, 5)))
+
+
+def test_force_evaluator_refuses_forces_of_another_shape():
+    """A forces callable (not an adapter, whose own checks come first) answering with another shape is a
+    NumericalError naming both shapes, not a broadcasting traceback."""
+    from stepnf.errors import NumericalError
+
+    with pytest.raises(NumericalError, match=r"shape \(3, 4\) for \(3, 5\)"):
+        ForceEvaluator(lambda X: np.zeros((3, 4)), 5, Counters())(np.ones((3, 5)))
