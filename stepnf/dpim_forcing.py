@@ -35,9 +35,10 @@ only), then dropped. Each order's new directions go to the black box in ONE batc
 (``forces(U)``, or ``forces(U, out=U)`` for a ``forces`` with ``accepts_out``: the forces then replace
 the fields in the same array).
 
-Round-off: each direction is probed at its own scale, as :class:`~stepnf.polarisation.Polariser`
-does with one field per term, so the same estimates hold; H(u, v, w) sums seven values instead of
-four, and a direction sums at most three units (``|z|_inf <= 3``).
+Round-off: each direction is probed at its own scale (its largest entry at ``probe``) with its ``K z``
+removed explicitly, so the estimates of :mod:`stepnf.polarisation` hold per value; H(u, v, w) sums seven
+values instead of four, and a direction sums at most three units (``|z|_inf <= 3``). Measured against
+the exact tensors on a random 9-dof cubic, orders 2..9: 2.8e-15 of the largest term.
 """
 from __future__ import annotations
 
