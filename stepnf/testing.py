@@ -41,8 +41,10 @@ from .adapter import DIRECTIONS, SolverAdapter
 from .testing_base import CheckResult, CheckSkipped, Tolerances, maxabs, random_fields
 from .testing_model import check_from_config, check_model_keys
 
-__all__ = ["CHECKS", "CheckResult", "CheckSkipped", "Tolerances", "adapter_checks", "check_from_config",
-           "check_model_keys", "parametrize_with_checks", "run_checks"]
+__all__ = ["CHECKS", "CheckResult", "CheckSkipped", "Tolerances", "adapter_checks", "check_batch_equals_loop",
+           "check_conservative_force", "check_dof_coordinates", "check_dof_directions", "check_from_config",
+           "check_model_keys", "check_slope_equals_K", "check_step_equals_intrusive", "check_symmetric_matrices",
+           "check_transverse_displacements", "check_zero_force", "parametrize_with_checks", "run_checks"]
 
 
 def check_symmetric_matrices(adapter: SolverAdapter, tol: Tolerances) -> None:

@@ -56,6 +56,7 @@ class CheckResult:
 
 
 def maxabs(A) -> float:
+    """The largest absolute entry of a dense or sparse matrix."""
     return float(abs(A).max()) if sp.issparse(A) else float(np.max(np.abs(A)))
 
 
