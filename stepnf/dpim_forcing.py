@@ -23,7 +23,7 @@ and the terms are sums of those values (exact for a cubic f)::
 for the odd harmonics 1..N, DCT-II nodes in ``2 theta`` for the even ones 0..N-1, so every order's
 cosine coefficients are exact from them), so a direction is the same vector at every order and is sent
 once: the pair (q, r) of order q + r sends ``u_q +- u_r``, whose H3 the triples (q, q, r) of order
-2q + r and (q, r, s) of order q + r + s reuse; ``u_q`` alone serves ``G(w_q, w_q)`` at order 2q and
+2q + r and (q, r, t) of order q + r + t reuse; ``u_q`` alone serves ``G(w_q, w_q)`` at order 2q and
 ``H3(u_q)`` wherever a triple needs it. New at an order: two directions per pair, one per triple of
 three different orders, and the lone units not sent yet. For one master this is 200 force evaluations
 to order 7 and 2624 to order 15, against 368 and 5920 with new directions for every term and nodes
