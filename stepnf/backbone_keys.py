@@ -23,7 +23,7 @@ from .config import check_number, describe_value
 from .errors import SceneError
 from .schema import Key, Schema
 
-#: Orders: 3 (DNF's T) up to 25; the force evaluations grow like N^3.5 (``stepnf.dpim.planned_evaluations``:
+#: Orders: 3 (DNF's T) up to 25; the force evaluations grow like N^3.5 (``stepnf.dpim_forcing.planned_evaluations``:
 #: 200 per mode at 7, 2624 at 15), 25 already costs ~1.6e4 per mode, and the series' radius of convergence
 #: rarely rewards more.
 ORDER_RANGE = (3, 25)

@@ -61,7 +61,7 @@ from .counters import Counters
 from .dpim_backbone import Backbone
 from .dpim_solvers import FactorizationFactory, ShiftedSolves, Solve
 from .errors import NumericalError
-from .dpim_forcing import OrderForcing, planned_evaluations as _planned
+from .dpim_forcing import OrderForcing
 from .polarisation import ForceBatch
 
 DENSE_SPECTRUM_LIMIT = 2000
@@ -207,12 +207,6 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
             progress(p)
     solves.release()
     return DPIMResult(float(omega), phi, M, order, Y, np.asarray(c), counts, flags)
-
-
-def planned_evaluations(order: int) -> list[int]:
-    """Force evaluations of orders 2..order (what :func:`dpim` will ask, before any zero-vector shortcut):
-    :func:`stepnf.dpim_forcing.planned_evaluations`."""
-    return _planned(order)
 
 
 def check_mode(K, M, phi: np.ndarray, omega: float, master: int | None = None, tol: float = 1e-6) -> None:

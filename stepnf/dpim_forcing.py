@@ -47,8 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import NumericalError
-from .polarisation import ForceBatch, PolarisationStats, probe_forces
+from .polarisation import ForceBatch, PolarisationStats, checked_probe, probe_forces
 
 #: A probe direction ``sum_i coef_i u_{q_i}``: ``((q, coef), ...)`` sorted by q, the first coefficient +1.
 Direction = tuple[tuple[int, int], ...]
@@ -122,9 +121,7 @@ class OrderForcing:
     """
 
     def __init__(self, forces: ForceBatch, K: Any, probe: float, order: int, nodes: tuple[np.ndarray, dict]):
-        if not (probe > 0 and np.isfinite(probe)):
-            raise NumericalError(f"polarisation: the probe displacement must be a positive length, got {probe!r}")
-        self.forces, self.K, self.probe, self.order = forces, K, float(probe), int(order)
+        self.forces, self.K, self.probe, self.order = forces, K, checked_probe(probe), int(order)
         self.theta, self.bases = nodes  # (J,), {parity: (harmonics, B (J, J))}
         self.stats = PolarisationStats()
         self._units: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # q -> (norms, units, K units)
@@ -171,28 +168,31 @@ class OrderForcing:
 
     def _evaluate(self, new: list[Direction], p: int) -> None:
         """G and H3 of the new directions at every node: ONE call of ``forces`` with the fields +-s z."""
-        J = len(self.theta)
-        rows = []  # (direction, node, s, z)
-        for d in new:
-            for l in range(J):
-                z = sum(c * self._units[q][1][l] for q, c in d)
-                peak = float(np.abs(z).max())
-                if peak > 0:  # a zero direction (zero units, or u - v of equal units): zero values, not sent
-                    rows.append((d, l, self.probe / peak, z))
+        J, n = len(self.theta), self._n()
         for d in new:
             if self._last_g.get(d, 0) >= p:
-                self._g[d] = np.zeros((J, self._n()))
+                self._g[d] = np.zeros((J, n))
             if self._last_h.get(d, 0) >= p:
-                self._h[d] = np.zeros((J, self._n()))
-        if not rows:
+                self._h[d] = np.zeros((J, n))
+        U = np.empty((2 * J * len(new), n))  # +s z rows first, then their negatives; the fields built in place
+        rows = []  # (direction, node, s)
+        for d in new:
+            for l in range(J):
+                z = U[len(rows)]
+                np.multiply(self._units[d[0][0]][1][l], d[0][1], out=z)
+                for q, c in d[1:]:
+                    z += c * self._units[q][1][l]
+                peak = float(np.abs(z).max())
+                if peak > 0:  # a zero direction (zero units, or u - v of equal units): zero values, not sent
+                    z *= self.probe / peak
+                    rows.append((d, l, self.probe / peak))
+        R = len(rows)
+        if not R:
             return
-        R, n = len(rows), self._n()
-        U = np.empty((2 * R, n))
-        for i, (_, _, s, z) in enumerate(rows):
-            np.multiply(z, s, out=U[i])
+        U = U[:2 * R]
         np.negative(U[:R], out=U[R:])
         F = probe_forces(self.forces, U, self.stats)
-        for i, (d, l, s, _) in enumerate(rows):
+        for i, (d, l, s) in enumerate(rows):
             fp, fm = F[i], F[R + i]
             if d in self._g:
                 self._g[d][l] = (fp + fm) / (2.0 * s * s)

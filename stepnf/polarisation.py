@@ -83,11 +83,9 @@ class Polariser:
     """
 
     def __init__(self, forces: ForceBatch, K: sp.spmatrix | np.ndarray, probe: float):
-        if not (probe > 0 and np.isfinite(probe)):
-            raise NumericalError(f"polarisation: the probe displacement must be a positive length, got {probe!r}")
         self.forces = forces
         self.K = K
-        self.probe = float(probe)
+        self.probe = checked_probe(probe)
         self.stats = PolarisationStats()
 
     # ------------------------------------------------------------ public API
@@ -243,6 +241,13 @@ class _ProbePlan:
         self.linear.append(linear)
         self.group.append(self._recipe)
         return len(self.directions) - 1
+
+
+def checked_probe(probe: float) -> float:
+    """The probe displacement as a float; NumericalError unless a positive finite length."""
+    if not (probe > 0 and np.isfinite(probe)):
+        raise NumericalError(f"polarisation: the probe displacement must be a positive length, got {probe!r}")
+    return float(probe)
 
 
 def probe_forces(forces: ForceBatch, U: np.ndarray, stats: PolarisationStats) -> np.ndarray:

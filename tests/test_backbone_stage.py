@@ -15,7 +15,8 @@ import pytest
 
 from stepnf.cli import main
 from stepnf.counters import Counters
-from stepnf.dpim import dpim, planned_evaluations
+from stepnf.dpim import dpim
+from stepnf.dpim_forcing import planned_evaluations
 from stepnf.pipeline import run_scene
 from stepnf.scene import load_scene
 from stepnf.show import stored_result

@@ -18,7 +18,8 @@ import scipy.sparse as sp
 from scipy.special import ellipk
 
 from stepnf.counters import Counters
-from stepnf.dpim import dpim, phase_nodes, planned_evaluations, shared_nodes
+from stepnf.dpim import dpim, phase_nodes, shared_nodes
+from stepnf.dpim_forcing import planned_evaluations
 from stepnf.errors import NumericalError
 from stepnf.evaluators import FullOrderContext, dnf
 from stepnf.linalg import PseudoInverse
@@ -251,7 +252,7 @@ def test_shared_forcing_equals_the_tensors_at_every_order():
     round-off of polarisation ~1e-15 of the terms (module docstring of stepnf.polarisation), summed over
     <= 20 terms per order and amplified by the DCT (condition <= sqrt 2): 1e-12 of the largest term
     (measured <= 2.8e-15)."""
-    from stepnf.dpim_forcing import OrderForcing, planned_evaluations
+    from stepnf.dpim_forcing import OrderForcing
 
     n, N = 9, 9
     M, K, G, H = random_system(n, 3)

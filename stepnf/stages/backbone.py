@@ -30,7 +30,8 @@ import math
 import numpy as np
 
 from ..backbone_report import WMax, backbone_report, transverse_operator
-from ..dpim import DPIMResult, dpim, planned_evaluations
+from ..dpim import DPIMResult, dpim
+from ..dpim_forcing import planned_evaluations
 from ..errors import SceneError
 from ..gamma import gamma_scale
 from ..shifted import ShiftedFactorizer, Slot
