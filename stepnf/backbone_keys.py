@@ -24,7 +24,7 @@ from .errors import SceneError
 from .schema import Key, Schema
 
 #: Orders: 3 (DNF's T) up to 25; the force evaluations grow like N^3.5 (``stepnf.dpim_forcing.planned_evaluations``:
-#: 200 per mode at 7, 2624 at 15), 25 already costs ~1.6e4 per mode, and the series' radius of convergence
+#: 176 per mode at 7, 2336 at 15), 25 already costs ~1.5e4 per mode, and the series' radius of convergence
 #: rarely rewards more.
 ORDER_RANGE = (3, 25)
 #: Amplitudes are lengths in model units (the range of ``[analysis.step] amplitude``); W_max/h up to 1e3

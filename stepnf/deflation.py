@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from .block_product import block_product
 from .counters import Counters
 from .errors import NumericalError
 
@@ -48,6 +49,7 @@ class DeflatedSolver:
     def __init__(self, K: sp.spmatrix, M: sp.spmatrix, Phi: np.ndarray, lam: np.ndarray, R: np.ndarray,
                  precond, counters: Counters | None = None, *, rtol: float = 1e-12, maxiter: int = 300):
         self.K, self.M = K, M
+        self._K_block, self._M_block = block_product(K), block_product(M)  # lockstep CG's block products
         self.Psi = np.column_stack([R, Phi]) if R.shape[1] else Phi
         self.lam = np.concatenate([np.zeros(R.shape[1]), lam])
         self.n_rigid = R.shape[1]
@@ -126,7 +128,7 @@ class DeflatedSolver:
         rz[act] = np.einsum("ij,ij->j", R[:, act], Z)
         for it in range(1, self.maxiter + 1):
             Da = D[:, act]
-            AD = self._project_rhs(self.K @ Da - (self.M @ Da) * sig[act])
+            AD = self._project_rhs(self._K_block @ Da - (self._M_block @ Da) * sig[act])
             dAd = np.einsum("ij,ij->j", Da, AD)
             if np.any(dAd <= 0):
                 raise NumericalError("deflated solve: K - sigma M is not positive on the uncomputed modes")

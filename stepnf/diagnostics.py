@@ -64,9 +64,10 @@ def one_two_flags(p: int, w: float, st, basis: ModalBasis, ctx: FullOrderContext
     floor = np.full(len(g), floor0)
     if st.Gv_check is not None:
         floor = np.maximum(floor, 10.0 * np.abs(near_phi.T @ (st.Gv - st.Gv_check)))
-    labels = adapter.mode_labels(near_phi) if not basis.complete else list(adapter.mode_labels(near_phi))
-    resonant = [j for j in np.nonzero(coupled(g, tol.coupling, floor))[0]
+    resonant = [int(j) for j in np.nonzero(coupled(g, tol.coupling, floor))[0]
                 if abs(near_w[j] / w - 2.0) <= 2.0 * tol.resonance]
+    # only the resonant modes are named: labelling every computed mode for every master cost 0.3 s each at 250k
+    labels = dict(zip(resonant, adapter.mode_labels(near_phi[:, resonant]))) if resonant else {}
     flags = []
     for js in _same_frequency(near_w, resonant):  # a degenerate pair at 2 w_p is ONE resonance: one flag
         j = js[0]

@@ -57,6 +57,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from .block_product import block_product
 from .counters import Counters
 from .dpim_backbone import Backbone
 from .dpim_solvers import FactorizationFactory, ShiftedSolves, Solve
@@ -173,6 +174,7 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
     forcing = OrderForcing(forces, K, probe, order, shared_nodes(order))
     Msp = sp.csr_matrix(M) if sp.issparse(M) else np.asarray(M)
     Y: dict[tuple[int, int], np.ndarray] = {(1, 1): phi.copy()}
+    Mblock = block_product(Msp)
     MY: dict[tuple[int, int], np.ndarray] = {(1, 1): Msp @ phi}
     c: list[float] = []
     S: list[float] = []
@@ -194,9 +196,11 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
                 b = b + (m * m) * S[k - 1] * MY[(p - 2 * k, m)]
             rhs.append(b)
         # the harmonics of one order are independent (their right-hand sides use lower orders only)
-        for m, y in zip(ms, solves.solve_many(list(zip(ms, rhs)))):
+        ys = solves.solve_many(list(zip(ms, rhs)))
+        Mys = np.ascontiguousarray((Mblock @ np.column_stack(ys)).T)  # one block product: rows M y
+        for m, y, My in zip(ms, ys, Mys):
             Y[(p, m)] = y
-            MY[(p, m)] = Msp @ y
+            MY[(p, m)] = My
         counts.append({"order": p, "force_evaluations": forcing.stats.force_evaluations - before[0],
                        "force_calls": forcing.stats.calls - before[1],
                        "linear_solves": counters.linear_solves - before[2],

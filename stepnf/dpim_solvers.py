@@ -77,6 +77,7 @@ class ShiftedSolves:
         self.twin_index = list(range(self.twins.shape[1])) if twin_index is None else list(twin_index)
         self.coupling = float(coupling)
         self._cache: dict[float, Solve] = {}
+        self._basis: tuple[np.ndarray, np.ndarray] | None = None  # (D, M D) of the resonant solves
         self._factors: list[Any] = []  # factorisations made here, released by release()
         self.shifts_factorised: list[float] = []
 
@@ -178,9 +179,11 @@ class ShiftedSolves:
                 and self.deflated.admissible(self.omega ** 2))
 
     def _resonant_basis(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(D, M D)``, ``D = [phi, twins]``."""
-        D = np.column_stack([self.phi, self.twins])
-        return D, self.M @ D
+        """``(D, M D)``, ``D = [phi, twins]`` (made once)."""
+        if self._basis is None:
+            D = np.column_stack([self.phi, self.twins])
+            self._basis = (D, np.asarray(self.M @ D, dtype=float))
+        return self._basis
 
     def _resonant_rhs(self, b: np.ndarray, DMD: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
         """``b`` without its part along phi and the twins; a twin that ``b`` drives is refused."""

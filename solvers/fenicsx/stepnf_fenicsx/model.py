@@ -96,6 +96,11 @@ class MaterialField:
         return ufl.as_matrix([[s[0], s[5], s[4]], [s[5], s[1], s[3]], [s[4], s[3], s[2]]])
 
 
+def _same_graph(a: tuple, b: tuple) -> bool:
+    """Whether two sparsity graphs ``(bs, offsets, columns)`` are equal."""
+    return a[0] == b[0] and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+
+
 class CubicForms:
     """Compiled forms of an exact cubic internal force ``f(u)`` and their use.
 
@@ -104,6 +109,8 @@ class CubicForms:
     derivatives of f at 0 (G: the second derivative / 2, H: the third / 6),
     so the intrusive tensors are exact.
     """
+
+    _pattern: tuple | None = None  # (node graph, (indptr, indices)) of the last matrix assembled
 
     def compile(self, f_u, f_z, du, mass) -> None:
         import ufl
@@ -131,10 +138,21 @@ class CubicForms:
         return _compat.assemble_vector(self.H_form)
 
     def stiffness(self):
-        return _compat.assemble_matrix(self.K_form)
+        return self._matrix(self.K_form)
 
     def mass(self):
-        return _compat.assemble_matrix(self.M_form)
+        return self._matrix(self.M_form)
+
+    def _matrix(self, compiled):
+        """A matrix of the forms assembled on its sparsity pattern; forms of the same node graph (K and M
+        of one space) share one copy of the index arrays (:func:`_compat.assemble_matrix`)."""
+        graph = _compat.sparsity_graph(compiled)
+        if graph is None:
+            return _compat.assemble_matrix(compiled)
+        kept = self._pattern
+        if kept is None or not _same_graph(kept[0], graph):
+            kept = self._pattern = (graph, _compat.expand_pattern(graph))
+        return _compat.assemble_matrix(compiled, kept[1])
 
 
 class SvkForms(CubicForms):

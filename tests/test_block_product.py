@@ -1,0 +1,53 @@
+"""Block products ``A @ X`` by PETSc (stepnf.block_product) equal scipy's to round-off, with fallbacks."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from stepnf.block_product import BlockProduct, block_product
+
+petsc4py = pytest.importorskip("petsc4py")
+
+
+def random_csr(n: int, seed: int = 0) -> sp.csr_matrix:
+    A = sp.random(n, n, density=0.05, random_state=seed, format="csr")
+    A = (A + A.T + sp.eye(n)).tocsr()
+    A.sum_duplicates()
+    A.sort_indices()
+    return A
+
+
+def rounding_bound(A: sp.csr_matrix, X: np.ndarray) -> np.ndarray:
+    """Entry-wise bound of the rounding of a row sum of r products: r eps (|A| |X|), r the row's entry count."""
+    r = np.diff(A.indptr).max()
+    return r * np.finfo(float).eps * (abs(A) @ np.abs(X))
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 5, 8])
+def test_block_product_equals_scipy(k):
+    A = random_csr(300)
+    X = np.random.default_rng(k).standard_normal((300, k))
+    P = BlockProduct(A)
+    Y = P @ X
+    assert Y.shape == (300, k) and Y.flags.c_contiguous
+    assert np.all(np.abs(Y - A @ X) <= rounding_bound(A, X))
+    assert (P._petsc not in (None, False)) == (k >= 2)  # PETSc is made (and used) for blocks only
+    y = P @ X[:, 0]
+    assert y.shape == (300,) and np.array_equal(y, A @ X[:, 0])  # one vector: scipy's own product
+
+
+def test_block_product_falls_back_to_scipy():
+    """Dense matrices, 64-bit indices and unsorted rows are multiplied by scipy, the same numbers."""
+    A = random_csr(120)
+    X = np.random.default_rng(3).standard_normal((120, 4))
+    wide = A.copy()
+    wide.indices = wide.indices.astype(np.int64)
+    wide.indptr = wide.indptr.astype(np.int64)
+    unsorted = A.copy()
+    unsorted.indices[:2] = unsorted.indices[:2][::-1].copy()  # row 0 out of order (it has >= 2 entries),
+    unsorted.data[:2] = unsorted.data[:2][::-1].copy()  # the same matrix
+    unsorted.has_sorted_indices = False
+    for B in (A.toarray(), wide, unsorted):
+        P = BlockProduct(B)
+        assert np.allclose(P @ X, A @ X, rtol=0, atol=1e-13)
+        assert P._petsc is False
+    assert block_product(P) is P
