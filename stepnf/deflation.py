@@ -49,11 +49,11 @@ class DeflatedSolver:
     def __init__(self, K: sp.spmatrix, M: sp.spmatrix, Phi: np.ndarray, lam: np.ndarray, R: np.ndarray,
                  precond, counters: Counters | None = None, *, rtol: float = 1e-12, maxiter: int = 300):
         self.K, self.M = K, M
-        self._K_block, self._M_block = block_product(K), block_product(M)  # lockstep CG's block products
+        self._K_block, self._M_block = block_product(K), block_product(M)  # block products (PETSc)
         self.Psi = np.column_stack([R, Phi]) if R.shape[1] else Phi
         self.lam = np.concatenate([np.zeros(R.shape[1]), lam])
         self.n_rigid = R.shape[1]
-        self.MPsi = M @ self.Psi
+        self.MPsi = self._M_block @ self.Psi
         self.precond = precond
         self.counters = counters
         self.rtol = rtol

@@ -17,6 +17,7 @@ import scipy.sparse as sp
 
 from .adapter import SolverAdapter
 from .backbone import MethodResult
+from .block_product import block_product
 from .counters import Counters
 from .errors import NumericalError
 from .evaluators import FullOrderContext, Tolerances, coupled
@@ -273,14 +274,15 @@ def smooth_eigenvalue(K: sp.spmatrix, M: sp.spmatrix, X: np.ndarray | None, D: n
                 cols.append(on * c[:, e] * c[:, f])
     Q = np.column_stack(cols)
     R = rigid_body_fields(X, D)
-    MR = M @ R
+    Mb = block_product(M)
+    MR = Mb @ R
     Q = Q - R @ np.linalg.lstsq(R.T @ MR, MR.T @ Q, rcond=None)[0]  # M-orthogonal to the rigid motions
     q, r = np.linalg.qr(Q)
     keep = np.abs(np.diag(r)) > 1e-10 * np.abs(np.diag(r)).max()
     q = q[:, keep]
     if not q.shape[1]:
         return None
-    Kr, Mr = q.T @ (K @ q), q.T @ (M @ q)
+    Kr, Mr = q.T @ (block_product(K) @ q), q.T @ (Mb @ q)
     lam = np.linalg.eigvalsh(np.linalg.solve(np.linalg.cholesky(Mr), np.linalg.solve(np.linalg.cholesky(Mr),
                                                                                       Kr).T))
     return float(max(lam.min(), 0.0))
