@@ -19,8 +19,9 @@ import numpy as np
 import scipy.sparse as sp
 
 #: Columns per PETSc product: its kernel takes four at a time (1.5-1.7 ms per column at 38k dofs for 2 to
-#: 16 columns), so chunks cost no speed and bound the copies made beside the result.
-CHUNK = 8
+#: 16 columns), so chunks of four cost no speed and bound the copies made beside the result (two chunks:
+#: 64 MB at 1M dofs).
+CHUNK = 4
 
 
 class BlockProduct:

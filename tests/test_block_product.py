@@ -22,7 +22,7 @@ def rounding_bound(A: sp.csr_matrix, X: np.ndarray) -> np.ndarray:
     return r * np.finfo(float).eps * (abs(A) @ np.abs(X))
 
 
-@pytest.mark.parametrize("k", [1, 2, 3, 5, 8, 13])  # 13: two chunks of PETSc products
+@pytest.mark.parametrize("k", [1, 2, 3, 5, 8, 13])  # 5, 8, 13: several chunks of PETSc products
 def test_block_product_equals_scipy(k):
     A = random_csr(300)
     X = np.random.default_rng(k).standard_normal((300, k))

@@ -296,21 +296,24 @@ def assemble_matrix(compiled, pattern: tuple[np.ndarray, np.ndarray] | None = No
 
 def sparsity_graph(compiled) -> tuple[int, np.ndarray, np.ndarray] | None:
     """``(bs, offsets, columns)``: DOLFINx's sparsity pattern of a bilinear form of one blocked space, by
-    nodes (``bs x bs`` blocks of dofs). None for two different spaces or where the sparsity API is not
-    DOLFINx 0.5's."""
+    nodes (``bs x bs`` blocks of dofs). None for two different spaces or a sparsity API this does not know.
+
+    0.5: ``pattern.assemble()``, ``pattern.graph`` an AdjacencyList (``.offsets``, ``.array``); 0.9:
+    ``pattern.finalize()``, ``pattern.graph`` the tuple ``(links, offsets)``."""
     from dolfinx import fem
 
     V0, V1 = compiled.function_spaces
-    bs = int(V0.dofmap.index_map_bs)
     if V1 is not V0:
         return None
     try:
         pattern = fem.create_sparsity_pattern(compiled)
-        pattern.assemble()
+        finish = getattr(pattern, "finalize", None) or pattern.assemble
+        finish()
         graph = pattern.graph
-        return bs, np.asarray(graph.offsets).copy(), np.asarray(graph.array).copy()
-    except (AttributeError, TypeError):
+        columns, offsets = graph if isinstance(graph, tuple) else (graph.array, graph.offsets)
+    except (AttributeError, TypeError, ValueError):
         return None
+    return int(V0.dofmap.index_map_bs), np.array(offsets), np.array(columns)
 
 
 def expand_pattern(graph: tuple[int, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

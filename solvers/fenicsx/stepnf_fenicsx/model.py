@@ -12,6 +12,7 @@ orthotropic ones (or any ``C``) use :mod:`stepnf.materials`' Voigt order
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -96,9 +97,15 @@ class MaterialField:
         return ufl.as_matrix([[s[0], s[5], s[4]], [s[5], s[1], s[3]], [s[4], s[3], s[2]]])
 
 
-def _same_graph(a: tuple, b: tuple) -> bool:
-    """Whether two sparsity graphs ``(bs, offsets, columns)`` are equal."""
-    return a[0] == b[0] and np.array_equal(a[1], b[1]) and np.array_equal(a[2], b[2])
+def _graph_key(graph: tuple) -> tuple:
+    """A key of a sparsity graph ``(bs, offsets, columns)``: its sizes and a BLAKE2 digest of its arrays
+    (keeping the graph itself would hold ~70 MB at 1M dofs for the sake of one comparison)."""
+    bs, offsets, columns = graph
+    h = hashlib.blake2b()
+    for a in (offsets, columns):  # the arrays' own bytes (buffer protocol: no copy) and their types
+        h.update(str(a.dtype).encode())
+        h.update(np.ascontiguousarray(a))
+    return bs, len(offsets), len(columns), h.hexdigest()
 
 
 class CubicForms:
@@ -110,7 +117,7 @@ class CubicForms:
     so the intrusive tensors are exact.
     """
 
-    _pattern: tuple | None = None  # (node graph, (indptr, indices)) of the last matrix assembled
+    _pattern: tuple | None = None  # (key of the node graph, (indptr, indices)) of the last matrix assembled
 
     def compile(self, f_u, f_z, du, mass) -> None:
         import ufl
@@ -149,10 +156,10 @@ class CubicForms:
         graph = _compat.sparsity_graph(compiled)
         if graph is None:
             return _compat.assemble_matrix(compiled)
-        kept = self._pattern
-        if kept is None or not _same_graph(kept[0], graph):
-            kept = self._pattern = (graph, _compat.expand_pattern(graph))
-        return _compat.assemble_matrix(compiled, kept[1])
+        key = _graph_key(graph)
+        if self._pattern is None or self._pattern[0] != key:
+            self._pattern = (key, _compat.expand_pattern(graph))
+        return _compat.assemble_matrix(compiled, self._pattern[1])
 
 
 class SvkForms(CubicForms):
