@@ -48,6 +48,7 @@ def test_block_product_falls_back_to_scipy():
     unsorted.has_sorted_indices = False
     for B in (A.toarray(), wide, unsorted):
         P = BlockProduct(B)
-        assert np.allclose(P @ X, A @ X, rtol=0, atol=1e-13)
+        # scipy either way; the dense product sums the row in another order (its zeros add exactly)
+        assert np.all(np.abs(P @ X - A @ X) <= 2 * rounding_bound(A, X))
         assert P._petsc is False
     assert block_product(P) is P
