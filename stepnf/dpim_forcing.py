@@ -80,15 +80,15 @@ class OrderTerms:
     cubes: tuple[int, ...]
     uuv: tuple[tuple[int, int], ...]
     uvw: tuple[tuple[int, int, int], ...]
-    split: frozenset[tuple[int, int]] = frozenset()
+    split: frozenset[tuple[int, int]]
 
     @classmethod
-    def of(cls, p: int, order: int | None = None) -> "OrderTerms":
-        """The terms of order ``p`` in a run to ``order`` (None: every pair sends ``u - v``)."""
+    def of(cls, p: int, order: int) -> "OrderTerms":
+        """The terms of order ``p`` in a run to ``order`` (the run's N decides which pairs are split)."""
         pairs = tuple((q, p - q) for q in range(1, (p + 1) // 2))
         trip = [(a, b, p - a - b) for a in range(1, p // 3 + 1) for b in range(a, (p - a) // 2 + 1)]
         uuv = tuple((a, c) if a == b else (c, a) for a, b, c in trip if (a == b) != (b == c))
-        split = frozenset(pr for pr in pairs if order is not None and 2 * pr[0] + pr[1] > order)
+        split = frozenset(pr for pr in pairs if 2 * pr[0] + pr[1] > order)
         return cls(p, pairs, p // 2 if p % 2 == 0 else None, tuple(a for a, b, c in trip if a == c), uuv,
                    tuple(t for t in trip if t[0] < t[1] < t[2]), split)
 

@@ -345,6 +345,7 @@ def _assemble_on(compiled, pattern: tuple[np.ndarray, np.ndarray]) -> sp.csr_mat
     lgmap = PETSc.LGMap().create(np.arange(n // bs, dtype=PETSc.IntType), bsize=bs, comm=PETSc.COMM_SELF)
     try:
         B.setLGMap(lgmap, lgmap)  # serial: local numbering is global
+        # never a new entry: PETSc would move the values out of our array into its own
         B.setOption(PETSc.Mat.Option.NEW_NONZERO_LOCATION_ERR, True)
         petsc.assemble_matrix(B, compiled)
         B.assemble()
