@@ -8,11 +8,14 @@ entry of ``A X`` summed over its row in the same order: equal bit for bit in tha
 
 :class:`BlockProduct` wraps a matrix once (PETSc reads scipy's own arrays: no copy) and uses PETSc for
 two columns or more when petsc4py is there and the matrix's index arrays are of PETSc's integer
-type with sorted columns; otherwise, and for one column, scipy. Sequential only (each MPI rank
-multiplies its own copy, ``PETSc.COMM_SELF``).
+type with sorted columns; otherwise, and for one column or complex numbers, scipy. Sequential only
+(each MPI rank multiplies its own copy, ``PETSc.COMM_SELF``). The PETSc matrix is destroyed with its
+:class:`BlockProduct` (or by :meth:`BlockProduct.close`): petsc4py would otherwise only park it
+for ``PETSc.garbage_cleanup``, holding PETSc's row arrays and the scipy matrix for the rest of the process.
 """
 from __future__ import annotations
 
+import weakref
 from typing import Any
 
 import numpy as np
@@ -35,12 +38,21 @@ class BlockProduct:
         self.A = A
         self.shape = A.shape
         self._petsc: Any = None  # the PETSc AIJ matrix on A's arrays, or False when PETSc is not used
+        self._destroy: weakref.finalize | None = None
+
+    def close(self) -> None:
+        """Destroy the PETSc matrix now (later products use scipy's kernel until wrapped again)."""
+        if self._destroy is not None:
+            self._destroy()
+        self._petsc, self._destroy = None, None
 
     def __matmul__(self, X: np.ndarray) -> np.ndarray:
         return self.product(X)
 
     def product(self, X: np.ndarray) -> np.ndarray:
-        """``A @ X`` (float64), ``X`` (m,) or (m, k); for k >= 2 by PETSc when usable."""
+        """``A @ X`` (float64), ``X`` (m,) or (m, k); for k >= 2 by PETSc when usable (complex: scipy's)."""
+        if np.iscomplexobj(X) or np.iscomplexobj(self.A):
+            return self.A @ X
         X = np.asarray(X, dtype=float)
         if X.ndim == 2 and X.shape[1] == 1:  # scipy's vector kernel, not its block one
             return np.asarray(self.A @ X[:, 0], dtype=float).reshape(-1, 1)
@@ -52,6 +64,9 @@ class BlockProduct:
     def _uses_petsc(self) -> bool:
         if self._petsc is None:
             self._petsc = _petsc_wrapper(self.A) or False
+            if self._petsc is not False:
+                self._destroy = weakref.finalize(self, self._petsc.destroy)
+                self._destroy.atexit = False  # not after PETSc's own finalisation at exit
         return self._petsc is not False
 
     def _petsc_product(self, X: np.ndarray) -> np.ndarray:
@@ -64,12 +79,14 @@ class BlockProduct:
         for j in range(0, k, CHUNK):
             part = np.asfortranarray(X[:, j:j + CHUNK])
             B = PETSc.Mat().createDense(part.shape, array=part, comm=PETSc.COMM_SELF)
-            C = self._petsc.matMult(B)
+            C = None
             try:
+                C = self._petsc.matMult(B)
                 out[:, j:j + part.shape[1]] = C.getDenseArray()
             finally:
                 B.destroy()
-                C.destroy()
+                if C is not None:
+                    C.destroy()
         return out
 
 

@@ -13,6 +13,7 @@ orthotropic ones (or any ``C``) use :mod:`stepnf.materials`' Voigt order
 from __future__ import annotations
 
 import hashlib
+import weakref
 from dataclasses import dataclass
 from typing import Any
 
@@ -117,7 +118,9 @@ class CubicForms:
     so the intrusive tensors are exact.
     """
 
-    _pattern: tuple | None = None  # (key of the node graph, (indptr, indices)) of the last matrix assembled
+    #: (key of the node graph, weak references to (indptr, indices)) of the last matrix assembled: reused
+    #: while a matrix still holds them (not kept alive for nothing, e.g. once boundary conditions copied K)
+    _pattern: tuple | None = None
 
     def compile(self, f_u, f_z, du, mass) -> None:
         import ufl
@@ -157,9 +160,14 @@ class CubicForms:
         if graph is None:
             return _compat.assemble_matrix(compiled)
         key = _graph_key(graph)
-        if self._pattern is None or self._pattern[0] != key:
-            self._pattern = (key, _compat.expand_pattern(graph))
-        return _compat.assemble_matrix(compiled, self._pattern[1])
+        pattern = None
+        if self._pattern is not None and self._pattern[0] == key:
+            pattern = tuple(ref() for ref in self._pattern[1])
+        if pattern is None or any(a is None for a in pattern):
+            pattern = _compat.expand_pattern(graph)
+        A = _compat.assemble_matrix(compiled, pattern)
+        self._pattern = (key, (weakref.ref(A.indptr), weakref.ref(A.indices)))  # the arrays A holds
+        return A
 
 
 class SvkForms(CubicForms):
