@@ -34,6 +34,9 @@ W_OVER_H_RANGE = (1e-12, 1e3)
 MAX_VALUES = 1000
 #: The grid: 2 points at least (a curve), 10 000 at most (each point a root find on the amplitude).
 POINTS_RANGE = (2, 10_000)
+#: The validity tolerance: a relative difference of two orders' frequencies, above the round-off of the
+#: polarised forces (~1e-13 of the frequency on an exact polynomial model, more on FE models).
+TOLERANCE_RANGE = (1e-10, 1.0)
 DEFAULT_ORDER = 7
 
 
@@ -79,7 +82,8 @@ BACKBONE_KEYS = Schema(
     Key("w_over_h", "custom", "W_max / h values at which w_NL is reported (needs a thickness)",
         check_value=_ascending(W_OVER_H_RANGE, "values of W_max / h > 0"), what="ascending list of W_max/h > 0"),
     Key("tolerance", "number", "relative difference of orders N-2 and N that ends the validity range",
-        default=1e-3, lo=0.0, hi=1.0, lo_open=True, why=" (a relative difference)"),
+        default=1e-3, lo=TOLERANCE_RANGE[0], hi=TOLERANCE_RANGE[1],
+        why=" (a relative difference; below 1e-10 two orders differ by round-off)"),
     Key("points", "integer", "grid size without a list", default=40, lo=POINTS_RANGE[0], hi=POINTS_RANGE[1]),
     doc="the DPIM backbone of every master mode",
 )
@@ -91,4 +95,8 @@ def parse_backbone(file: str | Path | None, table: Any) -> BackboneSpec:
     got = BACKBONE_KEYS.check(table, file=file, where=where)
     if "amplitudes" in got and "w_over_h" in got:
         raise SceneError(file, f"{where}.w_over_h", "give either amplitudes or w_over_h, not both")
+    listed = "amplitudes" if "amplitudes" in got else "w_over_h" if "w_over_h" in got else None
+    if listed and isinstance(table, dict) and "points" in table:
+        raise SceneError(file, f"{where}.points", f"points sizes the grid drawn without a list; with {listed} the "
+                         f"backbone is reported at those values: remove one of the two")
     return BackboneSpec(**got)

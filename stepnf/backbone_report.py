@@ -8,9 +8,11 @@ The JSON block of a master mode (``modes[i].backbone``)::
 
 ``A`` is the amplitude of the master modal coordinate ``q_p = phi_p^T M x`` over one period
 (:mod:`stepnf.dpim_backbone`), model length units (phi_p mass-normalised, as for T). ``valid_up_to``
-is the largest A where orders N-2 and N agree to ``tolerance`` (relative frequency difference);
-``null`` when they agree over the whole range searched (``valid_reason`` says which). ``grid``: the
-amplitudes are a grid up to the validity limit (no list in the scene). A value the
+is the largest A where orders N-2 and N agree to ``tolerance`` in frequency and to its square root in
+shape (:meth:`stepnf.dpim_backbone.Backbone.validity_limit`); ``null`` when they agree over the whole
+range searched; 0 when the stage found the forces at the probe amplitude inaccurate. ``valid_reason``
+says which: "orders differ", "shapes differ", "amplitude folds", "not reached", "forces inaccurate".
+``grid``: the amplitudes are a grid up to the validity limit (no list in the scene). A value the
 parametrisation cannot give (A beyond a fold of A(rho)) is ``null``, never NaN.
 
 ``W_max / h``: the largest transverse displacement over the mesh and the period, over the thickness,
@@ -94,14 +96,17 @@ class WMax:
             raise NumericalError("the master mode has no transverse displacement: W_max/h is zero")
         hi, prev = target / lin, 0.0
         for _ in range(80):
-            w = self(bb, hi)
+            with np.errstate(over="ignore", invalid="ignore"):  # rho^p overflows far out: not a number, stop
+                w = self(bb, hi)
+            if not np.isfinite(w):
+                break
             if w >= target:
                 return brentq(lambda r: self(bb, r) - target, 0.0, hi, xtol=1e-13 * hi, rtol=1e-13)
             if w <= prev:
                 break
             prev, hi = w, hi * 1.25
-        raise NumericalError(f"the order-{bb.N} parametrisation never reaches W_max/h = {target:.6g} "
-                             f"(it stops growing at {prev:.6g})")
+        why = f"it stops growing at {prev:.6g}" if prev > 0 else "the series overflows on the way"
+        raise NumericalError(f"the order-{bb.N} parametrisation never reaches W_max/h = {target:.6g} ({why})")
 
 
 def backbone_report(res: Any, spec: BackboneSpec, wmax: WMax | None, *, probe: float,

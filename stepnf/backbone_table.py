@@ -35,11 +35,7 @@ def backbone_lines(res: RunResult) -> list[str]:
         b = m.backbone
         if not b:
             continue
-        v = b.get("valid_up_to")
-        limit = (f"valid up to A = {float(v):.4g} (orders {b['order'] - 2} and {b['order']} within "
-                 f"{b['tolerance']:.0e})" if v is not None else
-                 f"orders {b['order'] - 2} and {b['order']} agree over the range searched")
-        out.append(f"backbone [{m.index} {label_text(m.label)}] order {b['order']}, {limit}:")
+        out.append(f"backbone [{m.index} {label_text(m.label)}] order {b['order']}, {limit_text(b)}:")
         wh = b.get("w_max_over_h")
         out.append(("  " + "  ".join(["A".ljust(11), "w_NL/w".ljust(10)] + (["W_max/h"] if wh else []))).rstrip())
         for i in _rows(b):
@@ -55,6 +51,18 @@ def backbone_lines(res: RunResult) -> list[str]:
             out.append(line.rstrip())
         out += flag_lines(b.get("flags", []))
     return out
+
+
+def limit_text(b: dict[str, Any]) -> str:
+    """What the block says of its validity limit (``valid_up_to``, ``valid_reason``)."""
+    v, orders = b.get("valid_up_to"), f"orders {b['order'] - 2} and {b['order']}"
+    if b.get("valid_reason") == "forces inaccurate":
+        return "no validity range: the forces at the probe amplitude are not accurate (flag below)"
+    if v is None:
+        return f"{orders} agree over the range searched"
+    tol = float(b["tolerance"])
+    return (f"valid up to A = {float(v):.4g} ({orders} within {tol:.0e} in frequency, {tol ** 0.5:.1g} in shape; "
+            f"{b.get('valid_reason', 'orders differ')} there)")
 
 
 def flag_lines(flags: list[dict[str, Any]]) -> list[str]:

@@ -10,6 +10,7 @@ failed cases; 1 anything unexpected (a bug: the message says so, and
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import traceback
 import warnings
@@ -76,9 +77,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .table import format_table
 
     scene = load_scene(args.scene)
-    if args.output:
+    if args.output is not None:
         from pathlib import Path
 
+        if not args.output.strip():
+            raise SceneError(args.scene, None, f"--output must name a folder, got {args.output!r}")
         scene.output_dir = Path(args.output)
     rank = _mpi_rank()
     if args.no_hdf5 or rank:
@@ -136,10 +139,9 @@ def _cmd_modes(args: argparse.Namespace) -> int:
 
 def _cmd_show(args: argparse.Namespace) -> int:
     """``stepnf show RESULT.h5``: the table of a stored run."""
-    from .show import stored_result
-    from .table import format_table
+    from .show import stored_table
 
-    print(format_table(stored_result(args.file)))
+    print(stored_table(args.file))
     return 0
 
 
@@ -157,11 +159,17 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     import json
 
     from .scene import load_scene
-    from .verify import format_report, verify_scene
+    from .verify import failed_orbits, format_report, verify_scene
 
     say = None if args.quiet else (lambda s: print(f"stepnf: {s}", file=sys.stderr, flush=True))
     doc = verify_scene(load_scene(args.scene), amplitudes=args.amplitudes, periods=args.periods, progress=say)
     print(json.dumps(doc, indent=2) if args.json else format_report(doc))
+    failed = failed_orbits(doc)
+    if failed:  # the checks that worked are printed above; the run as a whole did not verify
+        total = failed + sum(len(m["checks"]) for m in doc["modes"])
+        print(f"stepnf: solver failure: verify: {failed} of {total} orbits could not be computed (listed above)",
+              file=sys.stderr)
+        return 3
     return 0
 
 
@@ -340,6 +348,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                        "(type, range, default, meaning)")
     p_sol.set_defaults(func=_cmd_solvers)
     args = parser.parse_args(argv)
+    keep_sigpipe_ignored()
     formatwarning = warnings.formatwarning
     if not args.debug:  # "stepnf: warning: ..." rather than a source line that means nothing to a user
         warnings.formatwarning = _format_warning
@@ -351,6 +360,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return report_failure(exc)
     finally:
         warnings.formatwarning = formatwarning
+
+
+def keep_sigpipe_ignored() -> None:
+    """Ask PETSc (through ``PETSC_OPTIONS``, read when petsc4py starts) not to install its signal handlers.
+
+    Python ignores SIGPIPE, so a closed stdout (``stepnf run ... --json | head``) is a BrokenPipeError that
+    :func:`report_failure` takes quietly; PETSc's handler would instead print a crash banner and abort MPI.
+    """
+    opts = os.environ.get("PETSC_OPTIONS", "")
+    if "-no_signal_handler" not in opts.split():
+        os.environ["PETSC_OPTIONS"] = f"{opts} -no_signal_handler".strip()
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
@@ -377,6 +397,12 @@ def report_failure(exc: BaseException) -> int:
         print("stepnf: out of memory: the model or a requested quantity does not fit in this machine's memory; "
               "use a coarser mesh, fewer modes or a machine with more memory", file=sys.stderr)
         return 3
+    if isinstance(exc, BrokenPipeError):  # the reader of stdout left (`| head`): nothing failed here
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error at exit's flush
+        except (OSError, ValueError):
+            pass
+        return 0
     if isinstance(exc, OSError):  # a file or folder stepnf could not read or write
         where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
         print(f"stepnf: error: {exc.strerror or exc}{where}", file=sys.stderr)

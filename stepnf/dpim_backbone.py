@@ -11,7 +11,14 @@ largest ``|x_i|`` over the transverse dofs and the period, measured the same
 way. ``omega(A)`` inverts ``A(rho)`` (Brent; A(rho) = rho + O(rho^2)).
 
 Validity: the largest A below which orders N and N-2 give frequencies that
-differ by at most ``tol`` relative (both at the same measured A).
+differ by at most ``tol`` relative (both at the same measured A) and
+displacements that differ by at most ``sqrt(tol)`` (the largest M-norm over the
+period of the terms of orders N-1 and N, against that of the whole field, at the
+same rho). The frequency is stationary with respect to the shape (Rayleigh's
+quotient): a shape error ``e`` moves it by ``~e^2``, so ``sqrt(tol)`` asks of the
+shape what ``tol`` asks of the frequency. Without the second test a series that
+diverges in the modes other than the master (W_max/h growing without bound while
+``q_p`` stays moderate) would be called valid.
 """
 from __future__ import annotations
 
@@ -38,6 +45,7 @@ class Backbone:
         self.theta = np.linspace(0.0, np.pi, 64 * self.N + 1)
         self._cos = np.cos(np.outer(np.arange(self.N + 1), self.theta))  # (m, theta)
         self._transverse_kept: tuple | None = None  # (transverse, keys, parts) of _transverse_parts
+        self._gram: tuple | None = None  # (keys, Y^T M Y) of shape_difference
 
     # ------------------------------------------------------------ frequency
     def frequency(self, rho: float | np.ndarray) -> np.ndarray | float:
@@ -66,14 +74,18 @@ class Backbone:
             return 0.0
         hi, prev = float(A), 0.0
         for _ in range(200):
-            Ahi = self.amplitude(hi)
+            with np.errstate(over="ignore", invalid="ignore"):  # rho^p overflows far out: not a number, stop
+                Ahi = self.amplitude(hi)
+            if not np.isfinite(Ahi):
+                break
             if Ahi >= A:
                 return brentq(lambda r: self.amplitude(r) - A, 0.0, hi, xtol=1e-15 * hi, rtol=1e-15)
             if Ahi <= prev:
                 break
             prev, hi = Ahi, hi * 1.25
+        why = f"its A(rho) stops growing at {prev:.6g}" if prev > 0 else "the series overflows on the way"
         raise NumericalError(f"DPIM backbone: the order-{self.N} parametrisation never reaches the amplitude "
-                             f"A = {A:.6g} (its A(rho) stops growing at {prev:.6g})")
+                             f"A = {A:.6g} ({why})")
 
     def omega_at(self, A: float | Sequence[float]) -> np.ndarray:
         """Backbone frequencies (rad per time unit) at the amplitudes ``A`` of ``q_p``."""
@@ -114,14 +126,35 @@ class Backbone:
         return np.asarray([self.w_max(self.rho_at(float(x)), transverse, h) for x in np.atleast_1d(A)])
 
     # ---------------------------------------------------------- validity
+    def shape_difference(self, rho: float) -> float:
+        """``max_theta |x_N - x_{N-2}|_M / max_theta |x_N|_M`` at ``rho``: the terms of orders N-1 and N
+        against the whole field, on the phase grid (``Y^T M Y`` formed once)."""
+        if self._gram is None:
+            keys = list(self.res.Y)
+            Ystack = np.column_stack([self.res.Y[k] for k in keys])
+            self._gram = (keys, Ystack.T @ (self.res.M @ Ystack))
+        keys, G = self._gram
+        P = np.zeros((len(keys), self.N + 1))
+        for j, (p, m) in enumerate(keys):
+            P[j, m] = rho ** p
+        high = np.asarray([p > self.N - 2 for p, _ in keys])
+
+        def peak(P: np.ndarray) -> float:  # largest |x(theta)|_M^2 over the grid
+            S = P.T @ G @ P  # (m, m') Gram of the cosine coefficients
+            return float(np.max(np.einsum("mt,mt->t", S @ self._cos, self._cos)))
+
+        whole = peak(P)
+        return float(np.sqrt(max(peak(P * high[:, None]), 0.0) / whole)) if whole > 0 else 0.0
+
     def validity_limit(self, tol: float = 1e-3, lower: "Backbone | None" = None,
                        steps: int = 400, growth: float = 1.05) -> tuple[float | None, str]:
-        """``(A_max, reason)``: the largest A with ``|omega_N(A) - omega_{N-2}(A)| <= tol omega``.
+        """``(A_max, reason)``: the largest A with ``|omega_N(A) - omega_{N-2}(A)| <= tol omega`` and the
+        shapes of orders N and N-2 within ``sqrt(tol)`` (:meth:`shape_difference`).
 
         Marches rho up by ``growth`` from a small value and refines the first
         crossing by Brent's method. ``reason`` says what ended the march:
-        ``"orders differ"``, ``"amplitude folds"`` (A(rho) stops growing) or
-        ``"not reached"`` (A_max is then None).
+        ``"orders differ"`` (the frequencies), ``"shapes differ"`` (the displacements, module
+        docstring), ``"amplitude folds"`` (A(rho) stops growing) or ``"not reached"`` (A_max is then None).
         """
         if lower is None:
             lower = Backbone(self.res.truncated(self.N - 2)) if self.N >= 3 else None
@@ -129,24 +162,34 @@ class Backbone:
         c1 = abs(self.res.c[0]) if len(self.res.c) else 0.0
         rho = 1e-4 * (np.sqrt(w / c1) if c1 > 0 else 1.0)
 
-        def diff(r: float) -> float:
+        shape_tol = float(np.sqrt(tol))
+
+        def frequency_excess(r: float) -> float:
             A = self.amplitude(r)
-            return abs(self.frequency(r) - lower.frequency(lower.rho_at(A))) / w - tol
+            return abs(self.frequency(r) - lower.frequency(lower.rho_at(A))) / w / tol - 1.0
+
+        def diff(r: float) -> float:  # > 0 where the orders differ (frequency or shape)
+            return max(frequency_excess(r), self.shape_difference(r) / shape_tol - 1.0)
 
         prev_r, prev_A = 0.0, 0.0
         for _ in range(steps):
-            A = self.amplitude(rho)
-            if A <= prev_A:
+            with np.errstate(over="ignore", invalid="ignore"):
+                A = self.amplitude(rho)
+            if not np.isfinite(A) or A <= prev_A:
                 return prev_A, "amplitude folds"
             try:
-                d = diff(rho)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    d = diff(rho)
             except NumericalError:
+                return prev_A, "amplitude folds"
+            if not np.isfinite(d):
                 return prev_A, "amplitude folds"
             if d > 0:
                 if prev_r == 0.0:
                     return 0.0, "orders differ"
                 r = brentq(diff, prev_r, rho, xtol=1e-12 * rho)
-                return self.amplitude(r), "orders differ"
+                shape = self.shape_difference(r) / shape_tol - 1.0 >= frequency_excess(r)
+                return self.amplitude(r), "shapes differ" if shape else "orders differ"
             prev_r, prev_A, rho = rho, A, rho * growth
         return None, "not reached"
 

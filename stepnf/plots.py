@@ -14,7 +14,8 @@ def plot_mode_shapes(result: RunResult, path: str | Path) -> Path | None:
     """PNG of every master mode seen from above, coloured by its z displacement.
 
     Needs the adapter's dof coordinates and directions (FE models); returns
-    ``None`` (no figure) for models without them.
+    ``None`` (no figure) for models without them, or whose transverse dofs do not
+    span a plane seen from above (fewer than three positions, all on one line).
     """
     X = result.arrays.get("dof_coordinates")
     D = result.arrays.get("dof_directions")
@@ -34,11 +35,16 @@ def plot_mode_shapes(result: RunResult, path: str | Path) -> Path | None:
     pts = np.zeros((len(uniq), 2))
     np.add.at(pts, inv, xy)
     pts /= counts[:, None]
+    if not _spans_plane(pts):
+        return None
     k = len(result.modes)
     ncol = min(3, k)
     nrow = math.ceil(k / ncol)
+    try:
+        tri = Triangulation(pts[:, 0], pts[:, 1])
+    except (RuntimeError, ValueError):  # Qhull refuses a nearly flat set of points: no figure, as without X
+        return None
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 4.0 * nrow), squeeze=False)
-    tri = Triangulation(pts[:, 0], pts[:, 1])
     for ax, (j, mode) in zip(axes.ravel(), enumerate(result.modes)):
         w = np.zeros(len(uniq))
         np.add.at(w, inv, Phi[sel, j])
@@ -58,3 +64,11 @@ def plot_mode_shapes(result: RunResult, path: str | Path) -> Path | None:
     fig.suptitle(f"master modes, transverse displacement{kappa}")
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)
+
+
+def _spans_plane(pts: np.ndarray) -> bool:
+    """Whether the points (m, 2) can be triangulated: three or more, not all on one line (relative 1e-9)."""
+    if len(pts) < 3:
+        return False
+    sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
+    return bool(sv[0] > 0 and sv[1] > 1e-9 * sv[0])

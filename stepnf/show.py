@@ -51,3 +51,18 @@ def stored_result(path: str | Path) -> RunResult:
         raise StoreError(f"{path}: the stored run document is incomplete ({type(exc).__name__}: {exc})") from exc
     result.hdf5_path = str(path)
     return result
+
+
+def stored_table(path: str | Path) -> str:
+    """The table of the run stored in ``path``, as the run printed it (:func:`stepnf.table.format_table`).
+
+    A document edited by hand (a backbone block with a list cut short, a string for a number) is a
+    :class:`stepnf.errors.StoreError` naming the file, not an internal error.
+    """
+    from .table import format_table
+
+    result = stored_result(path)
+    try:
+        return format_table(result)
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise StoreError(f"{path}: the stored run document is malformed ({type(exc).__name__}: {exc})") from exc

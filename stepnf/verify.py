@@ -25,10 +25,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .backbone_keys import AMPLITUDE_RANGE
 from .errors import NumericalError, SceneError
 
 #: Largest model (dofs) checked by shooting; larger ones by time integration.
 SHOOTING_LIMIT = 300
+#: The most periods ``--periods`` may ask (3 by default): each period is many implicit steps of the full
+#: model at two step sizes, so this bounds a run's length rather than any accuracy.
+MAX_PERIODS = 1000
 
 
 class Chart:
@@ -189,6 +193,18 @@ def default_amplitudes(bb: Any, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0)
     return [A_max * f for f in fractions], why
 
 
+def scene_amplitudes(bb: Any, spec: Any, tol: float) -> tuple[list[float], str]:
+    """The scene's ``[analysis.backbone] amplitudes`` within the validity limit (orders N-2 and N within
+    ``tol``), and where they come from; an empty list without such amplitudes."""
+    listed = getattr(spec, "amplitudes", None)
+    if not listed:
+        return [], ""
+    limit, _ = bb.validity_limit(tol)
+    kept = [float(A) for A in listed if limit is None or A <= limit * (1 + 1e-9)]
+    left = len(listed) - len(kept)
+    return kept, "[analysis.backbone] amplitudes" + (f" ({left} beyond the validity limit left out)" if left else "")
+
+
 def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, periods: float = 3.0,
                  rtol: float = 1e-6, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0),
                  progress: Callable[[str], None] | None = None) -> dict:
@@ -196,11 +212,13 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
 
     Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``,
     ``method``, ``modes`` (one entry per master: ``index``, ``label``, ``omega``, ``order``,
-    ``amplitudes_from``, ``checks``, one dict per amplitude). Without ``amplitudes``, each mode is
-    checked at ``fractions`` of its validity limit (:func:`default_amplitudes`); ``rtol`` the
+    ``amplitudes_from``, ``checks``, one dict per amplitude, and ``failed``, one ``{amplitude, error}``
+    per orbit that could not be computed, when any). Without ``amplitudes``, each mode is
+    checked at the scene's amplitudes within its validity limit (:func:`scene_amplitudes`), else at
+    ``fractions`` of that limit (:func:`default_amplitudes`); ``rtol`` the
     integration's frequency accuracy (:func:`stepnf.integrate.measure`). A scene without
-    ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit a
-    :class:`NumericalError` naming the mode and the amplitude.
+    ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit is listed
+    under ``failed`` (:func:`failed_orbits`) and the other checks still run.
     """
     from .adapter import SolverAdapter, checked_matrices
     from .pipeline import run_scene
@@ -212,10 +230,12 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
     if spec is None:
         raise SceneError(where, "analysis.backbone", "stepnf verify checks the backbone curves: the scene has no "
                          "[analysis.backbone] table (add one, e.g. order = 7)")
-    if amplitudes is not None and not all(np.isfinite(a) and a > 0 for a in amplitudes):
-        raise SceneError(where, None, f"--amplitudes must be positive numbers, got {list(amplitudes)}")
-    if not (np.isfinite(periods) and periods >= 1):
-        raise SceneError(where, None, f"--periods must be a number >= 1, got {periods}")
+    lo, hi = AMPLITUDE_RANGE
+    if amplitudes is not None and not all(np.isfinite(a) and lo <= a <= hi for a in amplitudes):
+        raise SceneError(where, None, f"--amplitudes must be numbers in [{lo:g}, {hi:g}] (model length units, as "
+                         f"[analysis.backbone] amplitudes), got {list(amplitudes)}")
+    if not (np.isfinite(periods) and 1 <= periods <= MAX_PERIODS):
+        raise SceneError(where, None, f"--periods must be a number in [1, {MAX_PERIODS}], got {periods}")
     if not issubclass(get_solver(scene.solver), SolverAdapter):
         raise SceneError(where, "model.solver", f"stepnf verify integrates the full model: solver "
                          f"{scene.solver!r} is a model in modal coordinates, not a solver adapter")
@@ -238,7 +258,9 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
             bb = res.backbone()
             who = f"master mode {p}" + (f" {labels[p]}" if labels.get(p) is not None else "")
             tol = getattr(spec, "tolerance", 1e-3)
-            amps, src = (list(amplitudes), "--amplitudes") if amplitudes else default_amplitudes(bb, fractions, tol)
+            amps, src = (list(amplitudes), "--amplitudes") if amplitudes else scene_amplitudes(bb, spec, tol)
+            if not amps:
+                amps, src = default_amplitudes(bb, fractions, tol)
             if amplitudes:
                 limit, why = bb.validity_limit(tol)
                 if limit is not None and max(amps) > limit * (1 + 1e-9):
@@ -256,8 +278,9 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                     else:
                         chk = by_integration(res, K, M, adapter.internal_forces, A, periods=periods, rtol=rtol,
                                              tangent=tangent)
-                except NumericalError as exc:
-                    raise NumericalError(f"verify: {who} at A = {A:.6g}: {exc}") from exc
+                except NumericalError as exc:  # reported with the checks that worked (exit 3: stepnf.cli)
+                    entry.setdefault("failed", []).append({"amplitude": float(A), "error": f"{who}: {exc}"})
+                    continue
                 entry["checks"].append(check_dict(chk, res.omega))
             doc["modes"].append(entry)
         return doc
@@ -278,6 +301,11 @@ def check_dict(c: Check, omega: float) -> dict:
             "error_estimate": c.error_estimate, "seconds": round(c.seconds, 3), "work": c.work}
 
 
+def failed_orbits(doc: dict) -> int:
+    """How many orbits of the document could not be computed (``modes[i].failed``)."""
+    return sum(len(m.get("failed", [])) for m in doc["modes"])
+
+
 def format_report(doc: dict) -> str:
     """The side-by-side table ``stepnf verify`` prints."""
     how = ("shooting (DOP853, rtol 1e-12)" if doc["method"] == "shooting" else
@@ -292,6 +320,8 @@ def format_report(doc: dict) -> str:
             lines.append(f"  {c['orbit_amplitude']:12.6g} {c['omega_dpim_over_omega']:14.10f} "
                          f"{c['omega_check_over_omega']:14.10f} {c['relative_difference']:11.2e} "
                          f"{c['manifold_distance']:10.2e}")
+        for f in m.get("failed", []):
+            lines.append(f"  {f['amplitude']:12.6g}  no orbit: {f['error']}")
     lines.append("\nA: amplitude of q = phi^T M x measured on the orbit; w_DPIM at that A; distance: largest "
                  "relative energy-norm distance of the orbit from the parametrisation")
     return "\n".join(lines)

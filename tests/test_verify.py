@@ -127,19 +127,26 @@ def test_missing_scene_and_bad_numbers(tmp_path, capsys):
 
 def test_beyond_validity_exit_2_and_failed_orbit_exit_3(tmp_path, capsys, monkeypatch):
     """An amplitude beyond the validity limit is refused (exit 2, naming the mode and the limit); an orbit
-    that fails (here: shooting's Newton, forced) is exit 3 naming the mode and the amplitude."""
+    that fails (here: shooting's Newton, forced above A = 0.3) is listed with the mode and the amplitude
+    beside the checks that worked, and the run exits 3."""
     path = write_scene(tmp_path)
     code, _, err = run_cli(capsys, path, "--amplitudes", 0.5, 50, "--quiet")
     assert code == 2 and "master mode 0" in err and "validity limit" in err and "Traceback" not in err
     from stepnf.errors import NumericalError
     from stepnf.periodic import Shooting
 
-    def fail(self, A, **kw):
-        raise NumericalError("shooting: Newton did not converge in 25 iterations at q0 = 0.5")
-    monkeypatch.setattr(Shooting, "at_amplitude", fail)
-    code, _, err = run_cli(capsys, path, "--amplitudes", 0.5, "--quiet")
-    assert code == 3 and "master mode 0 at A = 0.5" in err and "did not converge" in err
-    assert "Traceback" not in err
+    works = Shooting.at_amplitude
+
+    def fail_above(self, A, **kw):
+        if A > 0.3:
+            raise NumericalError("shooting: Newton did not converge in 25 iterations at q0 = 0.5")
+        return works(self, A, **kw)
+    monkeypatch.setattr(Shooting, "at_amplitude", fail_above)
+    code, out, err = run_cli(capsys, path, "--amplitudes", 0.2, 0.5, "--quiet")
+    assert code == 3 and "1 of 2 orbits could not be computed" in err and "Traceback" not in err
+    rows = [line for line in out.splitlines() if line.startswith("  ") and "w_DPIM" not in line]
+    assert len(rows) == 2 and "no orbit" not in rows[0]
+    assert "no orbit: master mode 0" in rows[1] and "did not converge" in rows[1] and "0.5" in rows[1]
 
 
 # ------------------------------------------------------------------------- FE (slow)

@@ -29,6 +29,7 @@ import math
 
 import numpy as np
 
+from ..backbone import json_float
 from ..backbone_report import WMax, backbone_report, transverse_operator
 from ..dpim import DPIMResult, dpim
 from ..dpim_forcing import planned_evaluations
@@ -36,6 +37,7 @@ from ..errors import SceneError
 from ..gamma import gamma_scale
 from ..shifted import ShiftedFactorizer, Slot
 from ..step import ForceEvaluator, step_amplitude
+from ..trust import STEP_UNUSABLE
 from .backbone_slots import ParitySlots
 from .context import full_order_context
 from .state import RunState
@@ -182,11 +184,42 @@ def backbone_stage(state: RunState) -> None:
             for p in state.masters:
                 res = master_dpim(state, p, spec.order, forces, probe, odd)
                 fallback = step_amplitude(state.phi[:, p], state.policy, length)
-                keep_backbone(state, records.get(p), p, res, backbone_report(res, spec, wmax, probe=probe,
-                                                                             fallback=fallback))
+                block = backbone_report(res, spec, wmax, probe=probe, fallback=fallback)
+                keep_backbone(state, records.get(p), p, res, force_accuracy(block, records.get(p),
+                                                                            state.policy.tolerance))
         finally:
             if odd is not None:
                 odd.close()
+
+
+def force_accuracy(block: dict, record, tolerance: float) -> dict:
+    """``block`` with what STEP's check says of the forces at the probe amplitude (the backbone's probe is
+    STEP's amplitude, so its coefficients carry the same force errors).
+
+    The master's methods measured how much T changes between the two STEP amplitudes (``T_error``):
+    DNF's T is the backbone's order-3 term, else the steadiest method's is taken. Above the STEP
+    tolerance the block gets a ``step_accuracy`` flag; at :data:`stepnf.trust.STEP_UNUSABLE` (100%) or
+    more not even T's sign is established (forces at round-off, a model without nonlinearity): no
+    amplitude is then called valid (``valid_up_to`` 0, ``valid_reason`` "forces inaccurate").
+    """
+    methods = getattr(record, "methods", None) or {}
+    errors = {name: r.T_error for name, r in methods.items() if r.T_error is not None and np.isfinite(r.T_error)}
+    errors.update({name: np.inf for name, r in methods.items() if r.T_error is not None and name not in errors})
+    if not errors:
+        return block
+    name = "dnf" if "dnf" in errors else min(errors, key=errors.get)
+    err = errors[name]
+    if not err > tolerance:
+        return block
+    flag = {"kind": "step_accuracy", "mode": None, "value": json_float(err),
+            "message": f"{name.upper()}'s T changes by {err:.3g} (relative) between the two STEP amplitudes: the "
+                       "forces at the probe amplitude carry that error, and so do the backbone's coefficients"}
+    if err >= STEP_UNUSABLE:
+        flag["message"] += ("; the backbone is not established (set [analysis.step] amplitude, or check that "
+                            "the model is nonlinear)")
+        block.update(valid_up_to=0.0, valid_reason="forces inaccurate")
+    block["flags"] = list(block["flags"]) + [flag]
+    return block
 
 
 def keep_backbone(state: RunState, record, p: int, res: DPIMResult, block: dict) -> None:
