@@ -185,6 +185,14 @@ def check_format(attrs: Any, path: str | Path, *, format: str, version: int, wha
     return found
 
 
+def path_exists(path: str | Path) -> bool:
+    """``Path.exists`` that says False where the path cannot even be looked up (a name too long, a loop)."""
+    try:
+        return Path(path).exists()
+    except OSError:
+        return False
+
+
 def check_folder(folder: str | Path) -> str | None:
     """Why no file can be written into ``folder`` (created if missing), or ``None`` if one can.
 
@@ -195,7 +203,11 @@ def check_folder(folder: str | Path) -> str | None:
     """
     folder = Path(folder)
     for p in (folder, *folder.parents):
-        if p.exists() or p.is_symlink():
+        try:
+            here = p.exists() or p.is_symlink()
+        except OSError as exc:  # a name longer than the file system allows (ENAMETOOLONG), a loop
+            return f"unusable path {p}: {reason(exc)}"
+        if here:
             if not p.is_dir():
                 return f"{p} is not a folder" + ("" if p == folder else f" (needed to create {folder})")
             break

@@ -200,6 +200,7 @@ def _mpi_size() -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
+    from .dask_address import check_scheduler
     from .sweep import MAX_WORKERS, load_sweep, run_sweep
 
     if _mpi_size() > 1:
@@ -207,9 +208,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                           "let each case use MPI through the solver, or give it a Dask scheduler (docs/cluster.md)")
 
     if args.workers is not None and not 1 <= args.workers <= MAX_WORKERS:
-        raise SceneError(None, None, f"--workers: expected an integer in [1, {MAX_WORKERS}], got {args.workers}")
-    if args.scheduler is not None and not args.scheduler.strip():
-        raise SceneError(None, None, "--scheduler: expected a scheduler address such as tcp://host:8786")
+        raise SceneError(args.file, None, f"--workers: expected an integer in [1, {MAX_WORKERS}], got {args.workers}")
+    if args.scheduler is not None:
+        check_scheduler(args.file, None, args.scheduler, prefix="--scheduler: ")
     sweep = load_sweep(args.file)
     say = (lambda s: None) if args.quiet else (lambda s: print(f"[stepnf] {s}", file=sys.stderr, flush=True))
     rep = run_sweep(sweep, scheduler=args.scheduler, n_workers=args.workers, retry_failed=args.retry_failed,
@@ -235,6 +236,11 @@ def _cmd_curves(args: argparse.Namespace) -> int:
     progress = Progress(enabled=not args.quiet)
     try:
         modes = tuple(parse_mode(m) for m in args.modes) if args.modes else None
+        if modes and len(set(modes)) < len(modes):
+            twice = sorted({m for m in modes if modes.count(m) > 1})
+            raise CurvesError(f"--modes lists {', '.join(map(str, twice))} more than once")
+        if not args.out.strip():
+            raise CurvesError(f"--out must name a folder, got {args.out!r}")
         kw = {"kappa_max": args.kappa_max, "n_kappa": args.n_kappa, "nu": args.nu,
               "tolerances": Tolerances(resonance=args.resonance_tol),
               "gap_resonance": args.gap_tol, "omega_max": args.omega_max, "edge": args.edge}
@@ -257,11 +263,26 @@ def _cmd_curves(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Points of the von Karman curves ``stepnf fig4`` draws (each a modal eigen-solve and NF).
+FIG4_N_KAPPA = (2, 100_000)
+
+
 def _cmd_fig4(args: argparse.Namespace) -> int:
     from .compare import figure4, format_summary
 
-    res = figure4(args.stores, args.out, names=args.names.split(",") if args.names else None,
-                  n_kappa=args.n_kappa)
+    where = args.stores[0]
+    lo, hi = FIG4_N_KAPPA
+    if not lo <= args.n_kappa <= hi:
+        raise SceneError(where, None, f"--n-kappa: expected an integer in [{lo}, {hi}], got {args.n_kappa}")
+    names = None
+    if args.names is not None:
+        names = [n.strip() for n in args.names.split(",")]
+        if len(names) != len(args.stores) or not all(names):
+            raise SceneError(where, None, f"--names: expected {len(args.stores)} non-empty comma-separated names, "
+                             f"one per store, got {args.names!r}")
+    if not args.out.strip():
+        raise SceneError(where, None, f"--out must name a folder, got {args.out!r}")
+    res = figure4(args.stores, args.out, names=names, n_kappa=args.n_kappa)
     print(format_summary(res["summary"]))
     print(f"figure: {res['figure']}\ntable: {res['table']}")
     return 0

@@ -59,12 +59,12 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
     :class:`stepnf.errors.OutputError` whose ``result`` holds what was computed; the checkpoint
     folder is removed in both cases, and a previous results file is left untouched.
     """
-    from .atomic import check_folder
+    from .atomic import check_folder, path_exists
     from .errors import OutputError
 
     progress = progress or Progress(enabled=False)
     writing = write and scene.write_hdf5
-    created = writing and not scene.output_dir.exists()
+    created = writing and not path_exists(scene.output_dir)
     if writing:
         why = check_folder(scene.output_dir)
         if why is not None:

@@ -194,7 +194,11 @@ def read_hdf5(path: str | Path) -> dict[str, Any]:
             atomic.check_format(f.attrs, path, format=RUN_FORMAT, version=RUN_FORMAT_VERSION,
                                 what="run file")
             doc = json.loads(f.attrs["json"])
+            if not isinstance(doc, dict):
+                raise TypeError(f"its json attribute holds a {type(doc).__name__}, not a run document")
             doc["arrays"] = {k: np.asarray(v) for k, v in f["arrays"].items()}
     except (OSError, KeyError) as exc:
         raise StoreError(f"{path}: cannot read the HDF5 file (corrupt or truncated?): {exc}") from exc
+    except (ValueError, TypeError, AttributeError, RecursionError) as exc:  # JSONDecodeError is a ValueError
+        raise StoreError(f"{path}: the stored run document is malformed ({type(exc).__name__}: {exc})") from exc
     return doc

@@ -284,7 +284,7 @@ def _transverse(f, value: Any) -> str | tuple[float, float, float]:
         raise SceneError(f, key, f"expected one of {allowed(TRANSVERSE_NAMES)} or a direction vector [ex, ey, ez], "
                          f"got {describe_value(value)}")
     e = [float(check_number(f, f"{key}[{i}]", v, lo=-1e12, hi=1e12)) for i, v in enumerate(value)]
-    norm = math.sqrt(sum(x * x for x in e))
+    norm = math.hypot(*e)  # no underflow: [1e-300, 0, 0] is a direction too
     if not norm > 0:
         raise SceneError(f, key, "the direction vector must not be zero")
     return (e[0] / norm, e[1] / norm, e[2] / norm)

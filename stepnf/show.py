@@ -1,6 +1,7 @@
 """``stepnf show RESULT.h5``: the table of a stored run, printed again from its JSON document."""
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -9,9 +10,20 @@ from .errors import StoreError
 from .results import ModeResult, RunResult, read_hdf5
 
 
+def _num(x: Any) -> float:
+    """A JSON number back to a float (``"inf"``/``"-inf"`` included); stepnf never stores NaN, so a NaN is
+    a document edited by hand (a ValueError, reported as a malformed document)."""
+    if isinstance(x, bool):
+        raise ValueError(f"a boolean ({x}) where a number belongs")
+    v = float(x)
+    if math.isnan(v):
+        raise ValueError("NaN where a number belongs (stepnf never stores NaN)")
+    return v
+
+
 def _float(x: Any) -> float | None:
-    """A JSON number back to a float (``"inf"``/``"-inf"`` included)."""
-    return None if x is None else float(x)
+    """:func:`_num`, or None."""
+    return None if x is None else _num(x)
 
 
 def _label(x: Any) -> Any:
@@ -22,12 +34,12 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
     """The :class:`RunResult` a run's JSON document describes (what :func:`stepnf.table.format_table` needs)."""
     modes = []
     for m in doc.get("modes", []):
-        rec = ModeResult(index=int(m["index"]), label=_label(m.get("label")), omega=float(m["omega"]),
+        rec = ModeResult(index=int(m["index"]), label=_label(m.get("label")), omega=_num(m["omega"]),
                          rho=_float(m.get("rho")), rho_mode=m.get("rho_mode"), omega_bar=_float(m.get("omega_bar")),
                          w_max=_float(m.get("w_max")), step=dict(m.get("step") or {}),
                          flags=list(m.get("flags") or []), backbone=m.get("backbone"))
         for name, r in (m.get("methods") or {}).items():
-            rec.methods[name] = MethodResult(method=name, T=float(r["T"]), C=tuple(float(c) for c in r.get("C", ())),
+            rec.methods[name] = MethodResult(method=name, T=_num(r["T"]), C=tuple(_num(c) for c in r.get("C", ())),
                                              flags=list(r.get("flags") or []), order=r.get("order", "modal"),
                                              retained_modes=r.get("retained_modes"),
                                              T_error=_float(r.get("T_error")), gamma=_float(r.get("gamma")))
@@ -48,7 +60,7 @@ def stored_result(path: str | Path) -> RunResult:
     try:
         result = result_from_document(doc)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise StoreError(f"{path}: the stored run document is incomplete ({type(exc).__name__}: {exc})") from exc
+        raise StoreError(f"{path}: the stored run document is incomplete or malformed ({type(exc).__name__}: {exc})") from exc
     result.hdf5_path = str(path)
     return result
 

@@ -42,13 +42,13 @@ import itertools
 import json
 import logging
 import os
-import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from .config import check_name, check_number, check_table, check_text, check_unknown, describe_value, read_toml
+from .dask_address import check_scheduler
 from .errors import SceneError, StoreError
 
 TOP_KEYS = ("sweep", "output")
@@ -62,7 +62,6 @@ MAX_CASES = 10_000
 MAX_WORKERS = 1024
 MAX_THREADS = 256
 #: A dask.distributed address: "protocol://host:port", "host:port" (or a path after "inproc://").
-_ADDRESS = re.compile(r"^([a-z][a-z0-9+.-]*://)?[^\s/][^\s]*$")
 
 
 @dataclass
@@ -221,9 +220,7 @@ def _dask(path: Path, dk: Any) -> tuple[str | None, int | None, int]:
     if "scheduler" in dk:
         scheduler = check_text(path, "sweep.dask.scheduler", dk["scheduler"], "a scheduler address such as "
                           "\"tcp://10.0.0.5:8786\"")
-        if not _ADDRESS.match(scheduler):
-            raise SceneError(path, "sweep.dask.scheduler", f"expected an address such as \"tcp://10.0.0.5:8786\" "
-                             f"or \"10.0.0.5:8786\", got {scheduler!r}")
+        check_scheduler(path, "sweep.dask.scheduler", scheduler)
     n_workers = None
     if "n_workers" in dk:
         n_workers = int(check_number(path, "sweep.dask.n_workers", dk["n_workers"], integer=True, lo=1,
@@ -254,8 +251,10 @@ def read_store(path: str | Path) -> dict[str, dict[str, Any]]:
                 for k in ("params", "result"):
                     if k in rec:
                         rec[k] = json.loads(rec[k])
+                        if not isinstance(rec[k], dict):
+                            raise TypeError(f"case {cid}: {k} holds a {type(rec[k]).__name__}, not a table")
                 out[cid] = rec
-    except (OSError, KeyError, json.JSONDecodeError) as exc:
+    except (OSError, KeyError, ValueError, TypeError, AttributeError, RecursionError) as exc:  # ValueError: JSON
         raise StoreError(f"{path}: the sweep store is unreadable (corrupt or truncated): {exc}; "
                          "it was left untouched") from exc
     return out
