@@ -6,6 +6,7 @@ from pathlib import Path
 
 from .errors import SceneError
 
+#: The shape of an address before Dask parses it: an optional "scheme://", then no blank and no leading "/".
 _ADDRESS = re.compile(r"^([a-z][a-z0-9+.-]*://)?[^\s/][^\s]*$")
 
 #: Dask's network schemes a scheduler listens on.

@@ -55,12 +55,13 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
 def stored_result(path: str | Path) -> RunResult:
     """The run stored in ``path`` (a :class:`stepnf.errors.StoreError` for a file that is not one)."""
     if not Path(path).is_file():
-        raise StoreError(f"{path}: no such file")
+        raise StoreError(f"{path}: " + ("a folder, not a results file" if Path(path).is_dir() else "no such file"))
     doc = read_hdf5(path)
     try:
         result = result_from_document(doc)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise StoreError(f"{path}: the stored run document is incomplete or malformed ({type(exc).__name__}: {exc})") from exc
+        raise StoreError(f"{path}: the stored run document is incomplete or malformed "
+                         f"({type(exc).__name__}: {exc})") from exc
     result.hdf5_path = str(path)
     return result
 

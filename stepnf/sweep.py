@@ -61,7 +61,6 @@ OUTPUT_KEYS = ("dir",)
 MAX_CASES = 10_000
 MAX_WORKERS = 1024
 MAX_THREADS = 256
-#: A dask.distributed address: "protocol://host:port", "host:port" (or a path after "inproc://").
 
 
 @dataclass
