@@ -10,8 +10,8 @@ entry of ``A X`` summed over its row in the same order: equal bit for bit in tha
 two columns or more when petsc4py is there and the matrix's index arrays are of PETSc's integer
 type with sorted columns; otherwise, and for one column or complex numbers, scipy. Sequential only
 (each MPI rank multiplies its own copy, ``PETSc.COMM_SELF``). The PETSc matrix is destroyed with its
-:class:`BlockProduct` (or by :meth:`BlockProduct.close`): petsc4py would otherwise only park it
-for ``PETSc.garbage_cleanup``, holding PETSc's row arrays and the scipy matrix for the rest of the process.
+:class:`BlockProduct`: petsc4py would otherwise only park it for ``PETSc.garbage_cleanup``, holding
+PETSc's row arrays and the scipy matrix for the rest of the process.
 """
 from __future__ import annotations
 
@@ -38,13 +38,6 @@ class BlockProduct:
         self.A = A
         self.shape = A.shape
         self._petsc: Any = None  # the PETSc AIJ matrix on A's arrays, or False when PETSc is not used
-        self._destroy: weakref.finalize | None = None
-
-    def close(self) -> None:
-        """Destroy the PETSc matrix now (later products use scipy's kernel until wrapped again)."""
-        if self._destroy is not None:
-            self._destroy()
-        self._petsc, self._destroy = None, None
 
     def __matmul__(self, X: np.ndarray) -> np.ndarray:
         return self.product(X)
@@ -65,8 +58,7 @@ class BlockProduct:
         if self._petsc is None:
             self._petsc = _petsc_wrapper(self.A) or False
             if self._petsc is not False:
-                self._destroy = weakref.finalize(self, self._petsc.destroy)
-                self._destroy.atexit = False  # not after PETSc's own finalisation at exit
+                weakref.finalize(self, self._petsc.destroy).atexit = False  # not after PETSc's own exit
         return self._petsc is not False
 
     def _petsc_product(self, X: np.ndarray) -> np.ndarray:

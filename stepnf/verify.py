@@ -171,14 +171,14 @@ def backbone_spec(scene: Any) -> Any:
     return getattr(scene, "backbone", None)
 
 
-def default_amplitudes(bb: Any, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0), tol: float = 1e-3,
-                       shift: float = 0.10) -> tuple[list[float], str]:
-    """Amplitudes at ``fractions`` of the backbone's validity limit (orders N-2 and N within ``tol``).
+def default_amplitudes(bb: Any, limit: tuple[float | None, str], fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0),
+                       tol: float = 1e-3, shift: float = 0.10) -> tuple[list[float], str]:
+    """Amplitudes at ``fractions`` of the backbone's validity limit ``limit`` (``bb.validity_limit(tol)``).
 
     Without a limit (not reached), of the amplitude where ``omega`` has moved by ``shift``.
     Returns ``(amplitudes, where the top one comes from)``.
     """
-    A_max, why = bb.validity_limit(tol)
+    A_max, why = limit
     if A_max is None or A_max <= 0:
         w = bb.res.omega
         c1 = abs(bb.res.c[0]) if len(bb.res.c) else 0.0
@@ -193,13 +193,12 @@ def default_amplitudes(bb: Any, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0)
     return [A_max * f for f in fractions], why
 
 
-def scene_amplitudes(bb: Any, spec: Any, tol: float) -> tuple[list[float], str]:
-    """The scene's ``[analysis.backbone] amplitudes`` within the validity limit (orders N-2 and N within
-    ``tol``), and where they come from; an empty list without such amplitudes."""
+def scene_amplitudes(spec: Any, limit: float | None) -> tuple[list[float], str]:
+    """The scene's ``[analysis.backbone] amplitudes`` up to the validity limit ``limit`` (None: no limit
+    found), and where they come from; an empty list without such amplitudes."""
     listed = getattr(spec, "amplitudes", None)
     if not listed:
         return [], ""
-    limit, _ = bb.validity_limit(tol)
     kept = [float(A) for A in listed if limit is None or A <= limit * (1 + 1e-9)]
     left = len(listed) - len(kept)
     return kept, "[analysis.backbone] amplitudes" + (f" ({left} beyond the validity limit left out)" if left else "")
@@ -258,11 +257,11 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
             bb = res.backbone()
             who = f"master mode {p}" + (f" {labels[p]}" if labels.get(p) is not None else "")
             tol = getattr(spec, "tolerance", 1e-3)
-            amps, src = (list(amplitudes), "--amplitudes") if amplitudes else scene_amplitudes(bb, spec, tol)
+            limit, why = bb.validity_limit(tol)  # once per mode: each call marches the whole range
+            amps, src = (list(amplitudes), "--amplitudes") if amplitudes else scene_amplitudes(spec, limit)
             if not amps:
-                amps, src = default_amplitudes(bb, fractions, tol)
+                amps, src = default_amplitudes(bb, (limit, why), fractions, tol)
             if amplitudes:
-                limit, why = bb.validity_limit(tol)
                 if limit is not None and max(amps) > limit * (1 + 1e-9):
                     raise SceneError(where, None, f"--amplitudes {max(amps):.6g} is beyond the validity limit of "
                                      f"{who}, A = {limit:.6g} ({why}: orders {res.order - 2} and {res.order} "
