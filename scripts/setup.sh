@@ -3,57 +3,109 @@
 # (FEniCSx, CalculiX where Debian has it, numpy/scipy/h5py built against them), then
 # a virtual environment .venv that sees them (--system-site-packages) with stepnf and
 # its solver adapters installed in editable mode. Fast when already done.
-# Debian 12 gives FEniCSx 0.5 and CalculiX 2.20; Debian 13 gives FEniCSx 0.9 and no
-# calculix-ccx package: there the calculix adapter needs a ccx program on PATH.
+# Debian 12 gives FEniCSx 0.5 and CalculiX 2.20 (calculix-ccx: a set-up that cannot install it
+# fails, naming it); Debian 13 gives FEniCSx 0.9 and no calculix-ccx package: there the
+# calculix adapter needs a ccx program on PATH.
 #   bash scripts/setup.sh          what the main job needs
 #   bash scripts/setup.sh tests    and what the test suite drives besides: debootstrap and
 #                                  podman (root file systems and container images built by the
 #                                  slow image tests), python3-vtk9 (the VTK reader of ParaView,
-#                                  which reads the field files back)
+#                                  which reads the field files back), mpirun (mpi-default-bin)
+#                                  (tests/required_tools.txt lists what the tests require)
+# STEPNF_SETUP_DRY_RUN=1 prints the Debian packages it asks for and, after apt-get update, has
+# apt-get simulate installing the missing ones (so an unknown package fails here too), then stops:
+# nothing installed, no .venv.
+#
+# No pipelines here: under pipefail `cmd | grep -q ...` fails with 141 whenever grep exits at its
+# first match and cmd dies of SIGPIPE writing the rest (issue 29: `apt-cache policy calculix-ccx |
+# grep -q` dropped CalculiX 5 times in 6). Output is captured into a variable, then tested.
 set -euo pipefail
 case "${1:-}" in
   "") with_tests=0 ;;
   tests) with_tests=1 ;;
   *) echo "setup: unknown argument '$1' (allowed: nothing, or 'tests')" >&2; exit 2 ;;
 esac
+dry_run="${STEPNF_SETUP_DRY_RUN:-0}"
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 
 apt_packages=(python3-venv python3-setuptools python3-wheel python3-numpy python3-scipy python3-h5py
   python3-matplotlib python3-meshio python3-pytest python3-dask python3-distributed
   python3-dolfinx-real libopenblas0)  # OpenBLAS, not the reference BLAS a minimal system falls back to
-if [ "$with_tests" -eq 1 ]; then apt_packages+=(debootstrap podman python3-vtk9); fi
-installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
-# CalculiX: the calculix-ccx package where Debian has one (12), else a ccx of the user's (13 has none)
-ccx_candidate() { apt-cache policy calculix-ccx 2>/dev/null | grep -q "Candidate: [0-9]"; }
-# Debian 12 packages it: asked for there even when the package lists on the machine do not list it
-# yet (a fresh machine's lists may hold only the security updates); dropped after apt-get update
-# if it is still unknown
-debian_12() { [ -r /etc/os-release ] && grep -q '^VERSION_ID="12"' /etc/os-release; }
-apt_lists() { compgen -G "/var/lib/apt/lists/*_Packages*" >/dev/null; }
-want_ccx=0
-if ! command -v ccx >/dev/null 2>&1 && ! installed calculix-ccx; then
-  if ! apt_lists || debian_12 || ccx_candidate; then want_ccx=1; apt_packages+=(calculix-ccx); fi
+if [ "$with_tests" -eq 1 ]; then apt_packages+=(debootstrap podman python3-vtk9 mpi-default-bin); fi
+installed() {
+  local status
+  status="$(dpkg-query -W -f='${Status}' "$1" 2>/dev/null)" || return 1
+  [ "$status" = "install ok installed" ]
+}
+# apt knows an installable calculix-ccx (asked again after apt-get update)
+ccx_candidate() {
+  local policy
+  policy="$(apt-cache policy calculix-ccx 2>/dev/null)" || return 1
+  [[ "$policy" == *"Candidate: "[0-9]* ]]
+}
+os_id=""; os_version=""
+if [ -r /etc/os-release ]; then
+  os_id="$(. /etc/os-release && echo "${ID:-}")"; os_version="$(. /etc/os-release && echo "${VERSION_ID:-}")"
 fi
+apt_lists() { compgen -G "/var/lib/apt/lists/*_Packages*" >/dev/null; }
+# CalculiX: Debian 12 packages it (calculix-ccx 2.20) and this set-up promises it there: always asked
+# for, whatever the package lists say before apt-get update (a fresh machine's may hold only the
+# security updates) and whatever ccx is on PATH; one that cannot be installed is an error. Elsewhere
+# (Debian 13 packages none) asked for where apt knows it, else the user's ccx on PATH is needed.
+ccx_required=0; want_ccx=0
+if [ "$os_id" = debian ] && [ "$os_version" = 12 ]; then
+  ccx_required=1; want_ccx=1
+elif ! command -v ccx >/dev/null 2>&1 && ! installed calculix-ccx; then
+  if ! apt_lists || ccx_candidate; then want_ccx=1; fi
+fi
+if [ "$want_ccx" -eq 1 ]; then apt_packages+=(calculix-ccx); fi
 missing=()
 for p in "${apt_packages[@]}"; do installed "$p" || missing+=("$p"); done
+if [ "$dry_run" = 1 ]; then echo "setup: Debian packages asked for: ${apt_packages[*]}"; fi
 if [ ${#missing[@]} -gt 0 ]; then
   SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO apt-get update -qq
-  if [ "$want_ccx" -eq 1 ] && ! ccx_candidate; then  # known only now that the package lists are there
+  if [ "$want_ccx" -eq 1 ] && ! ccx_candidate; then  # known only now that the package lists are fresh
+    if [ "$ccx_required" -eq 1 ]; then
+      echo "setup: Debian 12 packages CalculiX as calculix-ccx, but apt-get finds no installable" \
+        "calculix-ccx after apt-get update (is 'bookworm main' in /etc/apt/sources.list?): CalculiX" \
+        "is not installed" >&2
+      exit 1
+    fi
     kept=(); for p in "${missing[@]}"; do [ "$p" = calculix-ccx ] || kept+=("$p"); done
     missing=("${kept[@]+"${kept[@]}"}")
   fi
   if [ ${#missing[@]} -gt 0 ]; then
-    echo "setup: installing Debian packages: ${missing[*]}"
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    if [ "$dry_run" = 1 ]; then
+      echo "setup: would install Debian packages: ${missing[*]}"
+      simulated="$(apt-get install -s -y --no-install-recommends "${missing[@]}")" || {
+        echo "setup: apt-get cannot install: ${missing[*]}" >&2; exit 1; }
+      echo "setup: apt-get simulated it: $(grep -c '^Inst ' <<<"$simulated") packages with their dependencies"
+    else
+      echo "setup: installing Debian packages: ${missing[*]}"
+      DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+    fi
   fi
 fi
-if ! command -v ccx >/dev/null 2>&1; then
-  echo "setup: this Debian has no calculix-ccx package (Debian 13 has none): stepnf and the FEniCSx" \
-    "adapters are set up without CalculiX; the calculix adapter needs the CalculiX program 'ccx' on" \
-    "PATH (build it from source, or use Debian 12), and its tests are skipped without it" >&2
+ccx_coming=0  # a dry run: calculix-ccx would be installed
+if [ "$dry_run" = 1 ]; then for p in "${missing[@]+"${missing[@]}"}"; do [ "$p" != calculix-ccx ] || ccx_coming=1; done; fi
+if [ "$ccx_coming" -eq 0 ] && ! command -v ccx >/dev/null 2>&1; then
+  if [ "$ccx_required" -eq 1 ] && [ "$dry_run" != 1 ]; then
+    echo "setup: calculix-ccx is installed but its program ccx is not on PATH ($PATH): CalculiX" \
+      "cannot run (dpkg -L calculix-ccx shows where it is)" >&2
+    exit 1
+  fi
+  if [ "$os_id" = debian ] && [ "$os_version" = 13 ]; then
+    what="Debian 13 packages no CalculiX (no calculix-ccx package)"
+  else
+    what="this system (${os_id:-unknown} ${os_version:-}) has no calculix-ccx package apt can install"
+  fi
+  echo "setup: $what: stepnf and the FEniCSx adapters are set up without CalculiX; the calculix" \
+    "adapter needs the CalculiX program 'ccx' on PATH (build it from source, or use Debian 12), and" \
+    "its tests are skipped without it" >&2
 fi
+if [ "$dry_run" = 1 ]; then echo "setup: dry run (STEPNF_SETUP_DRY_RUN=1): nothing installed"; exit 0; fi
 
 if [ ! -x .venv/bin/python ]; then
   echo "setup: creating .venv (with the system site packages, for FEniCSx)"
@@ -63,7 +115,7 @@ fi
 # editable installs of the core and of every adapter distribution under solvers/
 dists=(.)
 for d in solvers/*/; do [ -f "$d/pyproject.toml" ] && dists+=("${d%/}"); done
-stamp=$(cat pyproject.toml solvers/*/pyproject.toml 2>/dev/null | sha256sum | cut -c1-16)
+stamp="$(sha256sum < <(cat pyproject.toml solvers/*/pyproject.toml 2>/dev/null))"; stamp="${stamp:0:16}"
 if [ "$(cat .venv/.stepnf-stamp 2>/dev/null)" != "$stamp" ]; then
   echo "setup: installing stepnf and adapters: ${dists[*]}"
   args=()

@@ -14,10 +14,14 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from .adapter import SolverAdapter
-from .backbone import MethodResult, backbone_T
-from .errors import AdapterError, SceneError, SolverRunError, StepnfError, UnknownSolverError
-from .modal_model import ModalModel
+from .limits import one_blas_thread
+
+one_blas_thread()  # under `ulimit -v`, before numpy starts OpenBLAS (stepnf.limits)
+
+from .adapter import SolverAdapter  # noqa: E402
+from .backbone import MethodResult, backbone_T  # noqa: E402
+from .errors import AdapterError, SceneError, SolverRunError, StepnfError, UnknownSolverError  # noqa: E402
+from .modal_model import ModalModel  # noqa: E402
 
 __all__ = [
     "SolverAdapter", "ModalModel", "MethodResult", "backbone_T",

@@ -78,6 +78,9 @@ class SolverAdapter(FromScene):
     #: Every MPI rank runs the pipeline together (the adapter gathers its results to all ranks):
     #: calls must happen on every rank in the same order, so no force checkpoint is reused.
     collective: ClassVar[bool] = False
+    #: Building the model starts MPI (the adapter imports mpi4py, petsc4py or dolfinx): stepnf first checks
+    #: that Open MPI can start here (:func:`stepnf.mpi_env.require_mpi`), a one-line message otherwise.
+    uses_mpi: ClassVar[bool] = False
     #: STEP amplitude (fraction of the characteristic length) this solver works best with, when the
     #: scene gives none; e.g. larger for a solver that prints few digits. ``None``: stepnf's default.
     step_relative_amplitude: ClassVar[float | None] = None

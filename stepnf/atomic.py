@@ -10,8 +10,17 @@ writing the same file). How:
    with a segmentation fault while closing the file).
 2. The bytes are written with plain Python I/O to a temporary file
    ``.<name>.<random>.tmp`` in the target folder (same file system, so the
-   rename below is atomic), then ``fsync``-ed.
+   rename below is atomic; created ``O_EXCL | O_NOFOLLOW``), then ``fsync``-ed.
 3. ``os.replace`` puts it in place; the folder is ``fsync``-ed (best effort).
+
+Links: stepnf never writes through a symbolic link (a received folder may hold
+``NAME.h5 -> ../victim``). A link where the file goes is refused with an
+:class:`OutputError` naming it, its target untouched; steps 2 and 3 work relative
+to one open descriptor of the folder, and ``rename`` replaces a link planted
+after that check rather than following it. A folder stepnf makes for itself
+(the checkpoint folder, ``private_folder``) must not be a link either; the
+user's output folder may (a results folder on another disk is their choice).
+:func:`linked` finds such links before a run starts.
 
 Any failure removes the temporary file and raises :class:`OutputError`
 naming the file and the reason ("no space left on device", ...); the
@@ -34,12 +43,13 @@ import errno as _errno
 import io
 import os
 import secrets
+import stat
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
 from .errors import OutputError, StoreError
 
-__all__ = ["write_bytes", "hdf5_bytes", "write_hdf5", "check_format", "check_folder", "reason"]
+__all__ = ["write_bytes", "hdf5_bytes", "write_hdf5", "check_format", "check_folder", "reason", "linked"]
 
 
 def reason(exc: BaseException) -> str:
@@ -52,41 +62,65 @@ def reason(exc: BaseException) -> str:
     return str(exc) or type(exc).__name__
 
 
-def _fsync_folder(folder: Path) -> None:
+def _link_error(path: Path, what: str) -> OutputError:
     try:
-        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        target = f" (to {os.readlink(path)})"
     except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # some file systems cannot fsync a folder; the rename is done anyway
-        pass
-    finally:
-        os.close(fd)
+        target = ""
+    return OutputError(f"cannot write the {what} {path}: {path} is a symbolic link{target}; stepnf never writes "
+                       "through a link: remove it or choose another output folder", path=path)
+
+
+def _open_folder(folder: Path, *, private: bool, mkdir: bool) -> int:
+    """A file descriptor of ``folder`` (created if ``mkdir``); with ``private`` it must be no symbolic link."""
+    if mkdir and not private:
+        folder.mkdir(parents=True, exist_ok=True)
+    elif mkdir:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.mkdir(folder)
+        except FileExistsError:
+            pass
+    flags = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)
+    return os.open(folder, flags | (getattr(os, "O_NOFOLLOW", 0) if private else 0))
 
 
 def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what: str = "file",
-                mkdir: bool = True) -> Path:
+                mkdir: bool = True, private_folder: bool = False) -> Path:
     """Write ``data`` to ``path`` atomically (see the module docstring); return the path.
 
     ``what`` names the file in error messages ("results file", "sweep store").
     Raises :class:`OutputError` (with ``path`` and ``errno``) on any failure.
+
+    Never through a symbolic link: a link at ``path`` is refused (an :class:`OutputError` naming
+    it; its target is untouched), and with ``private_folder`` (a folder stepnf makes for itself,
+    the checkpoint folder) so is a link in place of the folder. The temporary file is created
+    with ``O_EXCL | O_NOFOLLOW`` and renamed relative to one descriptor of the folder, so a link
+    planted after the check is replaced by the file (``rename`` never follows its destination),
+    never written through. The user's output folder itself may be a link.
     """
     path = Path(path)
-    if path.is_symlink():  # replace the file the link points to, not the link
-        path = Path(os.path.realpath(path))
     folder = path.parent
-    tmp = folder / f".{path.name}.{secrets.token_hex(4)}.tmp"
-    fd = -1
+    name = path.name
+    tmp = f".{name}.{secrets.token_hex(4)}.tmp"
+    fd = dfd = -1
     try:
-        if mkdir:
-            folder.mkdir(parents=True, exist_ok=True)
         try:
-            keep_mode = os.stat(path).st_mode & 0o777
+            dfd = _open_folder(folder, private=private_folder, mkdir=mkdir)
+        except OSError as exc:
+            if private_folder and os.path.islink(folder):
+                raise _link_error(folder, what) from exc
+            raise
+        try:
+            st = os.stat(name, dir_fd=dfd, follow_symlinks=False)
         except FileNotFoundError:
-            keep_mode = None
-        # O_EXCL: never write through someone else's file; 0o666: the umask applies
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+            st = None
+        if st is not None and stat.S_ISLNK(st.st_mode):
+            raise _link_error(path, what)
+        keep_mode = stat.S_IMODE(st.st_mode) & 0o777 if st is not None and stat.S_ISREG(st.st_mode) else None
+        # O_EXCL | O_NOFOLLOW: never write through someone else's file or link; 0o666: the umask applies
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+                     | getattr(os, "O_CLOEXEC", 0), 0o666, dir_fd=dfd)
         if keep_mode is not None:
             os.fchmod(fd, keep_mode)
         view = memoryview(data).cast("B")
@@ -96,22 +130,29 @@ def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what:
         os.fsync(fd)
         os.close(fd)
         fd = -1
-        os.replace(tmp, path)
+        os.replace(tmp, name, src_dir_fd=dfd, dst_dir_fd=dfd)
+        try:
+            os.fsync(dfd)
+        except OSError:  # some file systems cannot fsync a folder; the rename is done anyway
+            pass
     except BaseException as exc:
         if fd >= 0:
             try:
                 os.close(fd)
             except OSError:
                 pass
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
+        if dfd >= 0:
+            try:
+                os.unlink(tmp, dir_fd=dfd)
+            except OSError:
+                pass
         if isinstance(exc, OSError):
             raise OutputError(f"cannot write the {what} {path}: {reason(exc)}", path=path,
                               errno=exc.errno) from exc
         raise
-    _fsync_folder(folder)
+    finally:
+        if dfd >= 0:
+            os.close(dfd)
     return path
 
 
@@ -191,6 +232,19 @@ def path_exists(path: str | Path) -> bool:
         return Path(path).exists()
     except OSError:
         return False
+
+
+def linked(folder: str | Path, names: Iterable[str]) -> Path | None:
+    """The first of ``folder / name`` that is a symbolic link (where :func:`write_bytes` would refuse
+    to write), or ``None``: a run checks its output names with it before computing anything."""
+    for name in names:
+        p = Path(folder) / name
+        try:
+            if p.is_symlink():
+                return p
+        except OSError:  # a name the file system cannot even look up: the writer says why
+            continue
+    return None
 
 
 def check_folder(folder: str | Path) -> str | None:

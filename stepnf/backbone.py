@@ -17,6 +17,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .flags import json_safe, t_unusable
+
 
 def backbone_T(C: Sequence[float], omega: float) -> float:
     """Eq. (7): T from the six coefficients ``C = (C1, ..., C6)`` and the angular frequency."""
@@ -74,15 +76,23 @@ class MethodResult:
 
     @property
     def behaviour(self) -> str:
+        """"hardening", "softening" or "linear" by T's sign; "diverges" for an infinite T (a zero
+        denominator gives no trend), "undetermined" for NaN."""
         if math.isnan(self.T):
             return "undetermined"
+        if math.isinf(self.T):
+            return "diverges"
         return "hardening" if self.T > 0 else ("softening" if self.T < 0 else "linear")
 
     def to_dict(self) -> dict[str, Any]:
+        """The JSON form: the numbers kept (infinite ones as "inf"/"-inf"), the flags, and ``na``: why the
+        table shows T as n/a (:func:`stepnf.flags.t_unusable`), or null."""
+        verdict = t_unusable(self)
         d: dict[str, Any] = {
             "T": json_float(self.T),
             "C": [json_float(c) for c in self.C],
-            "flags": self.flags,
+            "flags": json_safe(self.flags),
+            "na": None if verdict is None else {"kind": verdict[0], "reason": verdict[1]},
             "behaviour": self.behaviour,
             "order": self.order,
             "retained_modes": self.retained_modes,

@@ -11,7 +11,9 @@ The JSON block of a master mode (``modes[i].backbone``)::
 is the largest A where orders N-2 and N agree to ``tolerance`` in frequency and to its square root in
 shape (:meth:`stepnf.dpim_backbone.Backbone.validity_limit`); ``null`` when they agree over the whole
 range searched; 0 when the stage found the forces at the probe amplitude inaccurate. ``valid_reason``
-says which: "orders differ", "shapes differ", "amplitude folds", "not reached", "forces inaccurate".
+says which: "orders differ", "shapes differ", "amplitude folds", "not reached", "forces inaccurate", or
+the reason of a flag that takes every validity range (:data:`stepnf.flags.NO_VALIDITY_REASONS`: the
+master drives a degenerate twin or a rigid mode; a block whose DPIM refused has no amplitudes at all).
 ``grid``: the amplitudes are a grid up to the validity limit (no list in the scene). A value the
 parametrisation cannot give (A beyond a fold of A(rho)) is ``null``, never NaN.
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from .backbone_report import beyond_validity
+from .flags import NO_VALIDITY_REASONS
 from .results import RunResult, label_text
 
 #: Grid points shown per mode when the scene gives no list.
@@ -37,7 +38,8 @@ def backbone_lines(res: RunResult) -> list[str]:
             continue
         out.append(f"backbone [{m.index} {label_text(m.label)}] order {b['order']}, {limit_text(b)}:")
         wh = b.get("w_max_over_h")
-        out.append(("  " + "  ".join(["A".ljust(11), "w_NL/w".ljust(10)] + (["W_max/h"] if wh else []))).rstrip())
+        if b["amplitude"]:  # (a DPIM that refused the master has none)
+            out.append(("  " + "  ".join(["A".ljust(11), "w_NL/w".ljust(10)] + (["W_max/h"] if wh else []))).rstrip())
         for i in _rows(b):
             A = b["amplitude"][i]
             cells = [_f(A, "{:.4e}").ljust(11), _f(b["omega_ratio"][i], "{:.6f}").ljust(10)]
@@ -58,6 +60,8 @@ def limit_text(b: dict[str, Any]) -> str:
     v, orders = b.get("valid_up_to"), f"orders {b['order'] - 2} and {b['order']}"
     if b.get("valid_reason") == "forces inaccurate":
         return "no validity range: the forces at the probe amplitude are not accurate (flag below)"
+    if b.get("valid_reason") in NO_VALIDITY_REASONS:
+        return f"no validity range: {b['valid_reason']} (flag below)"
     if v is None:
         return f"{orders} agree over the range searched"
     tol = float(b["tolerance"])

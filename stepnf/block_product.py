@@ -8,7 +8,8 @@ entry of ``A X`` summed over its row in the same order: equal bit for bit in tha
 
 :class:`BlockProduct` wraps a matrix once (PETSc reads scipy's own arrays: no copy) and uses PETSc for
 two columns or more when petsc4py is there and the matrix's index arrays are of PETSc's integer
-type with sorted columns; otherwise, and for one column or complex numbers, scipy. Sequential only
+type with sorted columns, the matrix has :data:`PETSC_MIN_ROWS` rows or more and MPI can start
+(:mod:`stepnf.mpi_env`); otherwise, and for one column or complex numbers, scipy. Sequential only
 (each MPI rank multiplies its own copy, ``PETSc.COMM_SELF``). The PETSc matrix is destroyed with its
 :class:`BlockProduct`: petsc4py would otherwise only park it for ``PETSc.garbage_cleanup``, holding
 PETSc's row arrays and the scipy matrix for the rest of the process.
@@ -25,6 +26,12 @@ import scipy.sparse as sp
 #: 16 columns), so chunks of four cost no speed and bound the copies made beside the result (two chunks:
 #: 64 MB at 1M dofs).
 CHUNK = 4
+#: Fewer rows: scipy's product, and petsc4py (so MPI) is never imported for it. At the size below which
+#: :func:`stepnf.linalg.factorize` is dense LAPACK (:data:`stepnf.linalg.DENSE_LIMIT`) nothing else of a run
+#: needs PETSc, and PETSc's speed-up cannot matter: a 2000-row product with 8 columns takes well under a
+#: millisecond either way. The numbers are the same (each entry summed over its row in the same order;
+#: measured equal bit for bit at 2000 and 5000 rows, 8 columns, and for a whole 12-dof backbone run's output).
+PETSC_MIN_ROWS = 2000
 
 
 class BlockProduct:
@@ -85,6 +92,12 @@ class BlockProduct:
 def _petsc_wrapper(A: Any) -> Any:
     """A sequential PETSc AIJ matrix reading ``A``'s CSR arrays, or None when that is not possible."""
     if not sp.issparse(A) or A.format != "csr" or A.dtype != np.float64 or not A.has_canonical_format:
+        return None
+    if A.shape[0] < PETSC_MIN_ROWS:
+        return None
+    from .mpi_env import mpi_tmpdir_problem
+
+    if mpi_tmpdir_problem() is not None:  # Open MPI would abort the process: scipy's product, same numbers
         return None
     try:
         from petsc4py import PETSc

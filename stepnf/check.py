@@ -33,26 +33,29 @@ class SceneCheck:
         return [r for r in self.results if r.status == "failed"]
 
 
-def check_scene(path: str | Path) -> SceneCheck:
+def check_scene(path: str | Path, *, allow_programs: bool | None = None) -> SceneCheck:
     """Build the adapter of the scene at ``path`` and run every conformance check on it.
 
     Raises :class:`~stepnf.errors.SceneError` (bad scene, or a solver that is a modal model: the
     harness checks FE adapters), :class:`~stepnf.errors.UnknownSolverError`, or
     :class:`~stepnf.errors.AdapterError` when the adapter fails while it builds the model.
+    ``allow_programs``: as for :func:`stepnf.scene.load_scene`.
     """
     from .modal_model import ModalModel
+    from .programs import allow_programs as allowing
     from .registry import build_model, get_solver
     from .scene import load_scene
     from .testing import run_checks
 
-    scene = load_scene(path)
+    scene = load_scene(path, allow_programs=allow_programs)
     cls = get_solver(scene.solver)
     if issubclass(cls, ModalModel):
         raise SceneError(scene.file, "model.solver", f"{scene.solver!r} is a modal model ({cls.__name__}), not an FE "
                          "solver adapter: the conformance harness checks adapters (forces, M and K)")
     model = build_model(scene)
     try:
-        results = run_checks(lambda: model, config=scene.model, base_dir=scene.base_dir)
+        with allowing(scene.allow_programs):  # the from_config check builds the model again
+            results = run_checks(lambda: model, config=scene.model, base_dir=scene.base_dir)
     finally:
         model.close()
     return SceneCheck(Path(path), scene.solver, type(model).__name__, results)

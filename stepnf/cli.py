@@ -2,10 +2,10 @@
 ``stepnf check SCENE`` (the conformance harness on a scene's adapter: exit 3 when a check fails),
 ``stepnf verify SCENE`` (backbones against the full model's periodic orbits).
 
-Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model); 3 a
+Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model, a file given to show or fig4); 3 a
 solver or numerical failure, or a file that cannot be written; 4 a sweep with
-failed cases; 1 anything unexpected (a bug: the message says so, and
-``stepnf --debug ...`` prints the traceback); 130 interrupted.
+failed cases; 1 anything unexpected (a bug: the message says so, and ``stepnf --debug ...`` prints the
+traceback); interrupted, 128 + the signal: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (:mod:`stepnf.signals`).
 """
 from __future__ import annotations
 
@@ -17,6 +17,10 @@ import warnings
 from typing import Sequence
 
 from .errors import NumericalError, SceneError, SolverRunError, StepnfError, UnknownSolverError
+from .limits import out_of_memory, reserve_blas_buffer, short_of_memory
+from .signals import handled, interruption
+from .programs import allow_programs, program_flag
+from .printable import printable, safe_print as print  # noqa: A001 - control characters escaped (stepnf.printable)
 
 
 def _cmd_solvers(args: argparse.Namespace) -> int:
@@ -114,8 +118,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
             path = draw(result, scene.output_dir / f"{scene.output_name}_{suffix}.png")
             if path is not None:
                 result.extra_files.append(str(path))
-        except ImportError as exc:  # matplotlib missing: results are still there
-            print(f"warning: no figure ({exc})", file=sys.stderr)
+        except (ImportError, MemoryError, RuntimeError) as exc:  # matplotlib missing, or no room for it
+            if isinstance(exc, RuntimeError) and not short_of_memory(exc):
+                raise
+            print(f"warning: no figure ({str(exc) or 'out of memory'})", file=sys.stderr)  # results are there
         except (OSError, OutputError) as exc:  # full disk: the results file is written, the figure is not
             from .atomic import reason
 
@@ -214,7 +220,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     sweep = load_sweep(args.file)
     say = (lambda s: None) if args.quiet else (lambda s: print(f"[stepnf] {s}", file=sys.stderr, flush=True))
     rep = run_sweep(sweep, scheduler=args.scheduler, n_workers=args.workers, retry_failed=args.retry_failed,
-                    progress=say)
+                    recompute_stale=args.recompute_stale, progress=say)
     from .sweep import read_store
 
     failed = sorted(cid for cid, rec in read_store(sweep.store).items() if rec.get("status") != "done")
@@ -296,8 +302,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # --debug after the command too (`stepnf run s.toml --debug`); SUPPRESS keeps the top-level value
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+    programs = program_flag()  # --allow-programs: a program a scene names runs only so (stepnf.programs)
     sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", parents=[common], help="compute what a scene asks for")
+    p_run = sub.add_parser("run", parents=[common, programs], help="compute what a scene asks for")
     p_run.add_argument("scene", help="scene file (TOML)")
     p_run.add_argument("--json", action="store_true", help="print one JSON document on stdout instead of the table")
     p_run.add_argument("--compact", action="store_true", help="JSON on one line")
@@ -306,7 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_run.add_argument("--no-hdf5", action="store_true", help="do not write the HDF5 file")
     p_run.add_argument("--no-plot", action="store_true", help="do not draw figures")
     p_run.set_defaults(func=_cmd_run)
-    p_md = sub.add_parser("modes", parents=[common], help="list the first elastic modes (frequency, label, "
+    p_md = sub.add_parser("modes", parents=[common, programs], help="list the first elastic modes (frequency, label, "
                           "kinetic-energy shares) from one eigen-solve, no STEP")
     p_md.add_argument("scene", help="scene file (TOML)")
     p_md.add_argument("-n", type=_positive, default=None, metavar="N", help="number of modes (default 12)")
@@ -316,11 +323,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_sh = sub.add_parser("show", parents=[common], help="print the table of a stored run again")
     p_sh.add_argument("file", help="results file (HDF5) written by `stepnf run`")
     p_sh.set_defaults(func=_cmd_show)
-    p_sw = sub.add_parser("sweep", parents=[common], help="run every case of a sweep file on Dask (resumable)")
+    p_sw = sub.add_parser("sweep", parents=[common, programs],
+                          help="run every case of a sweep file on Dask (resumable)")
     p_sw.add_argument("file", help="sweep file (TOML)")
     p_sw.add_argument("--scheduler", help="address of an existing dask.distributed scheduler")
     p_sw.add_argument("--workers", type=int, help="local cluster size")
     p_sw.add_argument("--retry-failed", action="store_true", help="run again the cases stored as failed")
+    p_sw.add_argument("--recompute-stale", action="store_true", help="compute again the cases stored for another "
+                      "model (another model file or content, scene keys, adapter); refused without it")
     p_sw.add_argument("--quiet", "-q", action="store_true")
     p_sw.set_defaults(func=_cmd_sweep)
     p_cv = sub.add_parser("curves", parents=[common], help="von Karman shell: T_p by NF/MD/SMD and rho_p versus kappa "
@@ -352,10 +362,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_f4.add_argument("--out", default="results/fig4", help="output folder")
     p_f4.add_argument("--n-kappa", type=int, default=300, help="points of the von Karman curves")
     p_f4.set_defaults(func=_cmd_fig4)
-    p_ck = sub.add_parser("check", parents=[common], help="run the adapter conformance checks on a scene's model")
+    p_ck = sub.add_parser("check", parents=[common, programs],
+                          help="run the adapter conformance checks on a scene's model")
     p_ck.add_argument("scene", help="scene file (TOML)")
     p_ck.set_defaults(func=_cmd_check)
-    p_vf = sub.add_parser("verify", parents=[common], help="check the scene's backbone curves against periodic "
+    p_vf = sub.add_parser("verify", parents=[common, programs],
+                          help="check the scene's backbone curves against periodic "
                           "orbits of the full model (shooting, or time integration for large models)")
     p_vf.add_argument("scene", help="scene file (TOML) with an [analysis.backbone] table")
     p_vf.add_argument("--amplitudes", nargs="+", type=float, metavar="A",
@@ -374,7 +386,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.debug:  # "stepnf: warning: ..." rather than a source line that means nothing to a user
         warnings.formatwarning = _format_warning
     try:
-        return int(args.func(args))
+        reserve_blas_buffer()  # under `ulimit -v`: a message now rather than OpenBLAS spinning later
+        with allow_programs(True if getattr(args, "allow_programs", False) else None), handled():
+            return int(args.func(args))
     except BaseException as exc:  # noqa: BLE001 - every failure becomes a message and an exit code
         if args.debug and not isinstance(exc, (SystemExit, KeyboardInterrupt)):
             traceback.print_exc()
@@ -395,16 +409,15 @@ def keep_sigpipe_ignored() -> None:
 
 
 def _format_warning(message, category, filename, lineno, line=None) -> str:
-    return f"stepnf: warning: {message}\n"
+    return f"stepnf: warning: {printable(message)}\n"
 
 
 def report_failure(exc: BaseException) -> int:
     """Print what went wrong as one message on stderr and return the exit code (see the module docstring)."""
     if isinstance(exc, SystemExit):
         raise exc
-    if isinstance(exc, KeyboardInterrupt):
-        print("stepnf: interrupted; results already written are intact", file=sys.stderr)
-        return 130
+    if isinstance(exc, KeyboardInterrupt):  # Ctrl-C, or a signal turned into one (stepnf.signals)
+        return interruption(exc)
     if isinstance(exc, (SceneError, UnknownSolverError)):
         print(f"stepnf: error: {exc}", file=sys.stderr)
         return 2
@@ -414,9 +427,7 @@ def report_failure(exc: BaseException) -> int:
     if isinstance(exc, StepnfError):
         print(f"stepnf: error: {exc}", file=sys.stderr)
         return 3
-    if isinstance(exc, MemoryError):
-        print("stepnf: out of memory: the model or a requested quantity does not fit in this machine's memory; "
-              "use a coarser mesh, fewer modes or a machine with more memory", file=sys.stderr)
+    if out_of_memory(exc):  # MemoryError & co (stepnf.limits): names the stage and any ulimit
         return 3
     if isinstance(exc, BrokenPipeError):  # the reader of stdout left (`| head`): nothing failed here
         try:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .atomic import csv_text, write_text
 from .curves import CurveOptions, compute_curves
-from .errors import SceneError, StoreError
+from .errors import InputFileError, SceneError, StoreError
 from .evaluators import nf_modal
 from .figures import pyplot, save_figure
 from .sweep import read_store
@@ -52,9 +52,12 @@ def fe_points(store: str | Path, name: str | None = None, method: str = "dnf") -
     """Every (case, master mode) of a sweep store with its kappa and Gamma by ``method``."""
     if not Path(store).is_file():
         raise SceneError(store, None, "no such sweep store: give the .h5 file that `stepnf sweep` wrote")
-    recs = read_store(store)
+    try:  # a store named on the command line is the user's input: unusable, it is bad input (exit 2)
+        recs = read_store(store)
+    except StoreError as exc:
+        raise InputFileError.of(store, exc) from exc
     if not recs:
-        raise StoreError(f"{store}: no stored case (run `stepnf sweep` first)")
+        raise InputFileError(store, "no stored case (run `stepnf sweep` first)")
     out = []
     for cid, rec in sorted(recs.items()):
         if rec.get("status") != "done":

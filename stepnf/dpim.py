@@ -179,37 +179,39 @@ def dpim(forces: ForceBatch, K, M, phi: np.ndarray, omega: float, order: int, *,
     c: list[float] = []
     S: list[float] = []
     counts: list[dict[str, Any]] = []
-    for p in range(2, order + 1):
-        t0 = time.perf_counter()
-        before = (forcing.stats.force_evaluations, forcing.stats.calls, counters.linear_solves,
-                  counters.factorizations, len(solves.shifts_factorised))
-        ms, F = forcing(Y, p)
-        rhs = []
-        for j, m in enumerate(ms):
-            if m == 1:  # resonant: solvability gives S_k, then c_k
-                k = (p - 1) // 2
-                Sk = float(phi @ F[j]) - sum(S[i - 1] * float(phi @ MY[(p - 2 * i, 1)]) for i in range(1, k))
-                S.append(Sk)
-                c.append((Sk - sum(c[i - 1] * c[k - i - 1] for i in range(1, k))) / (2.0 * omega))
-            b = -F[j]
-            for k in range(1, (p - m) // 2 + 1 if m else 1):  # m = 0: no inertia term
-                b = b + (m * m) * S[k - 1] * MY[(p - 2 * k, m)]
-            rhs.append(b)
-        # the harmonics of one order are independent (their right-hand sides use lower orders only)
-        ys = solves.solve_many(list(zip(ms, rhs)))
-        Mys = np.ascontiguousarray((Mblock @ np.column_stack(ys)).T)  # one block product: rows M y
-        for m, y, My in zip(ms, ys, Mys):
-            Y[(p, m)] = y
-            MY[(p, m)] = My
-        counts.append({"order": p, "force_evaluations": forcing.stats.force_evaluations - before[0],
-                       "force_calls": forcing.stats.calls - before[1],
-                       "linear_solves": counters.linear_solves - before[2],
-                       "factorizations": max(counters.factorizations - before[3],
-                                             len(solves.shifts_factorised) - before[4]),
-                       "seconds": round(time.perf_counter() - t0, 4)})
-        if progress is not None:
-            progress(p)
-    solves.release()
+    try:  # the factorisations are freed also when a solve refuses (the run may go on: NoSingleModeManifold)
+        for p in range(2, order + 1):
+            t0 = time.perf_counter()
+            before = (forcing.stats.force_evaluations, forcing.stats.calls, counters.linear_solves,
+                      counters.factorizations, len(solves.shifts_factorised))
+            ms, F = forcing(Y, p)
+            rhs = []
+            for j, m in enumerate(ms):
+                if m == 1:  # resonant: solvability gives S_k, then c_k
+                    k = (p - 1) // 2
+                    Sk = float(phi @ F[j]) - sum(S[i - 1] * float(phi @ MY[(p - 2 * i, 1)]) for i in range(1, k))
+                    S.append(Sk)
+                    c.append((Sk - sum(c[i - 1] * c[k - i - 1] for i in range(1, k))) / (2.0 * omega))
+                b = -F[j]
+                for k in range(1, (p - m) // 2 + 1 if m else 1):  # m = 0: no inertia term
+                    b = b + (m * m) * S[k - 1] * MY[(p - 2 * k, m)]
+                rhs.append(b)
+            # the harmonics of one order are independent (their right-hand sides use lower orders only)
+            ys = solves.solve_many(list(zip(ms, rhs)))
+            Mys = np.ascontiguousarray((Mblock @ np.column_stack(ys)).T)  # one block product: rows M y
+            for m, y, My in zip(ms, ys, Mys):
+                Y[(p, m)] = y
+                MY[(p, m)] = My
+            counts.append({"order": p, "force_evaluations": forcing.stats.force_evaluations - before[0],
+                           "force_calls": forcing.stats.calls - before[1],
+                           "linear_solves": counters.linear_solves - before[2],
+                           "factorizations": max(counters.factorizations - before[3],
+                                                 len(solves.shifts_factorised) - before[4]),
+                           "seconds": round(time.perf_counter() - t0, 4)})
+            if progress is not None:
+                progress(p)
+    finally:
+        solves.release()
     return DPIMResult(float(omega), phi, M, order, Y, np.asarray(c), counts, flags)
 
 

@@ -37,7 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .counters import Counters
-from .errors import NumericalError
+from .errors import NoSingleModeManifold, NumericalError
 from .linalg import Factorization, PseudoInverse, factorize
 from .shifted import ShiftedFactorizer
 
@@ -145,7 +145,13 @@ class ShiftedSolves:
         if self.factory is None:  # stepnf's own: K - sigma M on one pattern shared with K and M
             self.factory = ShiftedFactorizer(self.K, self.M, counters=self.counters,
                                              backend=self.backend).factorizer
-        fac = self.factory(sigma, label)
+        try:
+            fac = self.factory(sigma, label)
+        except NumericalError as exc:  # K - (m w)^2 M singular: a mode at exactly m w (1:m resonance)
+            who = "the master mode" if self.master is None else f"master mode {self.master}"
+            raise NoSingleModeManifold(f"DPIM: K - ({m} w)^2 M is singular for {who}: a mode at exactly {m} times "
+                                       f"its frequency (1:{m} internal resonance), the parametrisation diverges "
+                                       f"there ({exc})", kind=f"internal_resonance_1_{m}") from exc
         self.shifts_factorised.append(sigma)
         self._factors.append(fac)
         return fac.solve
@@ -194,11 +200,11 @@ class ShiftedSolves:
             cos /= np.maximum(np.linalg.norm(self.twins, axis=0), 1e-300)
             if np.any(cos > self.coupling):
                 j = int(np.argmax(cos))
-                raise NumericalError(
+                raise NoSingleModeManifold(
                     f"DPIM: mode {self.twin_index[j]}, a degenerate twin of {who} (same frequency, 1:1 "
                     f"internal resonance), is driven by the master's nonlinear forces (coupling {cos[j]:.2e} > "
                     f"{self.coupling:.1e}): a single-mode invariant manifold does not exist; a two-mode "
-                    "parametrisation is needed")
+                    "parametrisation is needed", mode=int(self.twin_index[j]))
         return b - MD @ (D.T @ b)  # phi's part is the solvability condition (met up to round-off); twins' checked
 
     def _solve_resonant(self, b: np.ndarray) -> np.ndarray:

@@ -67,6 +67,25 @@ class StoreError(StepnfError, ValueError):
     """A results file or sweep store is unreadable, corrupt or not stepnf's."""
 
 
+class InputFileError(SceneError, StoreError):
+    """A file named on the command line to be read (``stepnf show RESULT.h5``) is missing, a folder,
+    not stepnf's or damaged.
+
+    Bad input (exit code 2), like a scene or a mesh: the user gave the file. Also a
+    :class:`StoreError`. A store stepnf finds damaged in its own output folder (a sweep's) stays a
+    plain :class:`StoreError` (exit 3: a file it cannot use or update).
+    """
+
+    def __init__(self, file: str | Path, message: str):
+        super().__init__(file, None, message)
+
+    @classmethod
+    def of(cls, file: str | Path, exc: BaseException) -> "InputFileError":
+        """The same message as ``exc`` (a :class:`StoreError` of a reader, which names ``file`` first)."""
+        text, prefix = str(exc), f"{file}: "
+        return cls(file, text[len(prefix):] if text.startswith(prefix) else text)
+
+
 class OutputError(StepnfError):
     """A result file could not be written (full disk, read-only or vanished folder, ...).
 
@@ -84,6 +103,17 @@ class OutputError(StepnfError):
 
 class NumericalError(StepnfError, ArithmeticError):
     """A numerical stage cannot produce a meaningful number (singular matrix, NaN)."""
+
+
+class NoSingleModeManifold(NumericalError):
+    """The DPIM's refusal of one master: its forces drive a degenerate twin (``kind`` "twin_driven"), or a
+    harmonic ``m`` of the parametrisation meets a mode exactly (``kind`` "internal_resonance_1_<m>",
+    ``K - (m w)^2 M`` singular). The run's backbone stage turns it into a flag of that master
+    (:mod:`stepnf.flags`) and goes on. ``mode``: the mode concerned, when known."""
+
+    def __init__(self, message: str, kind: str = "twin_driven", mode: int | None = None, **extra):
+        super().__init__(message)
+        self.kind, self.mode, self.extra = kind, mode, extra
 
 
 def allowed(values: Iterable[Any]) -> str:
@@ -113,3 +143,7 @@ class ModelWarning(UserWarning):
 
 class OutputWarning(UserWarning):
     """Something optional could not be written (a checkpoint chunk); the run goes on without it."""
+
+
+class StaleWarning(UserWarning):
+    """A stored result (a checkpoint, a sweep case) was made for another model: it is computed again."""

@@ -12,7 +12,9 @@ Back ends, chosen by :func:`factorize` (``backend="auto"``):
     scipy's default ``COLAMD`` on symmetric FE matrices).
 
 petsc4py is imported only when that back end is used, so ``import stepnf``
-stays light.
+stays light. Importing it starts MPI: where Open MPI cannot (an unusable
+``TMPDIR``, :mod:`stepnf.mpi_env`), ``auto`` takes SuperLU with a warning and
+``mumps`` is refused with a one-line message, instead of Open MPI's abort.
 """
 from __future__ import annotations
 
@@ -117,8 +119,15 @@ def _petsc_available() -> bool:
     if os.environ.get("STEPNF_NO_PETSC"):
         return False
     try:
-        import petsc4py  # noqa: F401  (is it importable?)
+        import petsc4py  # noqa: F401  (is it importable? This does not start MPI; petsc4py.PETSc does)
     except Exception:
+        return False
+    from .mpi_env import mpi_tmpdir_problem
+
+    problem = mpi_tmpdir_problem()
+    if problem is not None:
+        warnings.warn(f"MUMPS (petsc4py) not used: Open MPI cannot start, its temporary folder {problem}; "
+                      "SuperLU instead (slower on large models; set TMPDIR to a writable folder)", stacklevel=2)
         return False
     return True
 
@@ -127,6 +136,10 @@ def choose_backend(n: int, backend: str = "auto") -> str:
     """The back end :func:`factorize` uses for an (n, n) matrix."""
     if backend not in BACKENDS:
         raise ValueError(f"Unknown linear-solver back end {backend!r}. Pick one of {list(BACKENDS)}")
+    if backend == "mumps":
+        from .mpi_env import require_mpi
+
+        require_mpi('linear_solver = "mumps" (MUMPS through petsc4py)')
     if backend != "auto":
         return backend
     if n <= DENSE_LIMIT:

@@ -59,7 +59,7 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
     :class:`stepnf.errors.OutputError` whose ``result`` holds what was computed; the checkpoint
     folder is removed in both cases, and a previous results file is left untouched.
     """
-    from .atomic import check_folder, path_exists
+    from .atomic import check_folder, linked, path_exists
     from .errors import OutputError
 
     progress = progress or Progress(enabled=False)
@@ -70,6 +70,10 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
         if why is not None:
             raise SceneError(scene.file, "output.dir", f"the output folder {scene.output_dir} is not "
                              f"usable: {why}")
+        link = linked(scene.output_dir, output_names(scene.output_name))
+        if link is not None:  # stepnf never writes through a link (stepnf.atomic): say so before computing
+            raise SceneError(scene.file, "output.dir", f"{link} is a symbolic link; stepnf never writes through "
+                             "a link: remove it or choose another output folder")
     t_start = time.perf_counter()
     try:
         result, checkpoint = _compute(scene, progress, writing)
@@ -95,6 +99,15 @@ def run_scene(scene: Scene, *, progress: Progress | None = None, write: bool = T
         result.hdf5_path = str(path)
         _write_fields(scene, result)
     return result
+
+
+def output_names(name: str) -> list[str]:
+    """The names a run of output name ``name`` writes in its output folder (results, checkpoint folder,
+    field files, figures)."""
+    from .fields import FIELD_SUFFIXES
+
+    return [f"{name}.h5", f".{name}.partial", *(f"{name}_fields{s}" for s in FIELD_SUFFIXES),
+            f"{name}_modes.png", f"{name}_backbone.png"]
 
 
 def _write_fields(scene: Scene, result: RunResult) -> None:
@@ -138,8 +151,12 @@ def _compute(scene: Scene, progress: Progress, writing: bool) -> tuple[RunResult
         adapter = build_model(scene)
     # no checkpoint for an adapter whose calls are collective over MPI ranks: a rank that
     # reused stored forces would skip calls the other ranks make (rank 0 alone writes)
+    # keyed by the model (stepnf.model_key): chunks of another model are dropped, and the run says so
     if writing and not adapter.collective:
-        checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial")
+        from .model_key import describe_change, model_key
+
+        checkpoint = Checkpoint(scene.output_dir / f".{scene.output_name}.partial", key=model_key(scene),
+                                describe=describe_change)
     try:
         result = _run_adapter(scene, adapter, progress, checkpoint, fields=writing and scene.fields)
     finally:

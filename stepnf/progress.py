@@ -12,6 +12,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterator, TextIO
 
+from .printable import printable
+
 
 def peak_rss_mb() -> float | None:
     """Peak resident memory of this process so far, in MiB (``getrusage``); None where unavailable."""
@@ -63,7 +65,7 @@ class Progress:
 
     def message(self, text: str) -> None:
         if self.enabled:
-            print(f"[stepnf] {text}", file=self.stream, flush=True)
+            print(f"[stepnf] {printable(text)}", file=self.stream, flush=True)
 
     @contextmanager
     def stage(self, key: str, text: str) -> Iterator[None]:
@@ -73,6 +75,13 @@ class Progress:
         try:
             yield
             finished = True
+        except MemoryError as exc:  # the command line's message names the innermost stage
+            try:
+                if getattr(exc, "stepnf_stage", None) is None:
+                    exc.stepnf_stage = text
+            except MemoryError:  # no room even for the note: the error goes on without it
+                pass
+            raise
         finally:
             dt = time.perf_counter() - t0
             self.timings[key] = self.timings.get(key, 0.0) + dt
@@ -92,5 +101,5 @@ class Progress:
         width = 30
         fill = int(width * done / max(total, 1))
         end = "\n" if done >= total else "\r"
-        print(f"[stepnf] {text} [{'#' * fill}{'.' * (width - fill)}] {done}/{total}", end=end,
+        print(f"[stepnf] {printable(text)} [{'#' * fill}{'.' * (width - fill)}] {done}/{total}", end=end,
               file=self.stream, flush=True)

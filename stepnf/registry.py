@@ -135,9 +135,16 @@ def build_model(scene: Any) -> Any:
     :class:`~stepnf.errors.AdapterError` naming the adapter, its class and the scene (exit code 3),
     never a bare traceback.
     """
+    from .programs import allow_programs
+
     cls = get_solver(scene.solver)
+    if getattr(cls, "uses_mpi", False):  # Open MPI would abort the process with ~50 lines (stepnf.mpi_env)
+        from .mpi_env import require_mpi
+
+        require_mpi(f"solver {scene.solver!r}")
     try:
-        return cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+        with allow_programs(getattr(scene, "allow_programs", None)):  # the user's, never the scene's
+            return cls.from_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
     except StepnfError:
         raise
     except Exception as exc:  # noqa: BLE001 - a third-party constructor may raise anything

@@ -22,6 +22,7 @@ import numpy as np
 from . import atomic
 from .backbone import MethodResult, json_float
 from .errors import StoreError
+from .flags import json_safe, t_unusable
 
 
 @dataclass
@@ -51,11 +52,11 @@ class ModeResult:
             "rho_mode": self.rho_mode,
             "w_max": json_float(self.w_max),
             "step": {k: json_float(v) if isinstance(v, float) else v for k, v in self.step.items()},
-            "flags": self.flags,
+            "flags": json_safe(self.flags),
             "methods": {k: v.to_dict() for k, v in self.methods.items()},
         }
         if self.backbone is not None:
-            out["backbone"] = self.backbone
+            out["backbone"] = json_safe(self.backbone)
         return out
 
 
@@ -112,7 +113,7 @@ class RunResult:
             "timings": {k: round(v, 6) for k, v in self.timings.items()},
             "memory": self.memory,
             "spectrum": self.spectrum,
-            "flags": self.flags,
+            "flags": json_safe(self.flags),
             "hdf5": self.hdf5_path,
             "files": self.extra_files,
         }
@@ -173,9 +174,12 @@ def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Pat
                     mg.attrs["gamma"] = r.gamma
                 if r.T_error is not None:
                     mg.attrs["T_error"] = r.T_error
-                mg.attrs["flags"] = json.dumps(r.flags)
+                mg.attrs["flags"] = json.dumps(json_safe(r.flags), allow_nan=False)
+                verdict = t_unusable(r)  # the table's n/a, recorded (the number is kept); absent in old files
+                if verdict is not None:
+                    mg.attrs["na_kind"], mg.attrs["na_reason"] = verdict
             if m.backbone is not None:
-                g.attrs["backbone"] = json.dumps(m.backbone, allow_nan=False)
+                g.attrs["backbone"] = json.dumps(json_safe(m.backbone), allow_nan=False)
         arr = f.create_group("arrays")
         for k, v in result.arrays.items():
             arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)

@@ -107,6 +107,9 @@ class Scene:
     file: Path | None = None
     base_dir: Path = Path(".")
     text: str = ""
+    #: The user's permission for programs the scene names (:mod:`stepnf.programs`): never read from the
+    #: scene, given to :func:`load_scene`; ``None``: the permission in force (flag, environment).
+    allow_programs: bool | None = None
 
     def where(self) -> str:
         return str(self.file) if self.file else "<scene>"
@@ -134,19 +137,25 @@ THICKNESS_RANGE = (1e-12, 1e12)
 TRANSVERSE_NAMES = ("ux", "uy", "uz")
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file; errors name the file, the key and what is allowed."""
+def load_scene(path: str | Path, *, allow_programs: bool | None = None) -> Scene:
+    """Read and validate a scene file; errors name the file, the key and what is allowed.
+
+    ``allow_programs``: the user's permission for the programs a scene names (``executable``,
+    ``command``, ``templates``; :mod:`stepnf.programs`), kept on the scene for every model built from it;
+    ``None``: the permission in force (``--allow-programs``, ``STEPNF_ALLOW_PROGRAMS``)."""
     path = Path(path)
     data, text = read_toml(path, "scene")
-    return parse_scene(data, file=path.resolve(), base_dir=path.resolve().parent, text=text)
+    return parse_scene(data, file=path.resolve(), base_dir=path.resolve().parent, text=text,
+                       allow_programs=allow_programs)
 
 
 def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: Path | None = None,
-                text: str = "", check_model: bool = True) -> Scene:
+                text: str = "", check_model: bool = True, allow_programs: bool | None = None) -> Scene:
     """Validate a scene given as a mapping (what ``tomllib`` returns).
 
     ``check_model``: also check ``[model]`` against the solver's declared keys (the solver must be
-    installed; see :func:`check_model_keys`), as every scene read from a file is.
+    installed; see :func:`check_model_keys`), as every scene read from a file is. ``allow_programs``: as
+    for :func:`load_scene`.
     """
     f = file
     if not isinstance(data, Mapping):
@@ -170,7 +179,7 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
     sc = Scene(solver=solver, model={k: v for k, v in model.items() if k != "solver"},
                master_modes=_masters(f, an.get("master_modes")),
                methods=_methods(f, an.get("methods", ["nf", "dnf", "md", "smd"])), file=file,
-               base_dir=base_dir or Path("."), text=text)
+               base_dir=base_dir or Path("."), text=text, allow_programs=allow_programs)
     _analysis(f, an, sc)
     sc.step = _step(f, an.get("step", {}))
     sc.backbone = parse_backbone(f, an["backbone"]) if "backbone" in an else None
@@ -184,13 +193,15 @@ def check_model_keys(scene: Scene) -> dict[str, Any]:
     """The scene's ``[model]`` keys checked by its solver's
     :meth:`~stepnf.schema.FromScene.validate_config` (pure: nothing is built or computed), so a
     misspelt key fails when the scene is read, before any eigen-solve or Dask worker."""
+    from .programs import allow_programs
     from .registry import get_solver
 
     try:
         cls = get_solver(scene.solver)
     except UnknownSolverError as exc:
         raise SceneError(scene.file, "model.solver", str(exc)) from exc
-    return cls.validate_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
+    with allow_programs(scene.allow_programs):
+        return cls.validate_config(scene.model, base_dir=scene.base_dir, scene_file=scene.file)
 
 
 def _masters(f, masters: Any) -> list[int | str]:

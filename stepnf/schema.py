@@ -269,6 +269,13 @@ class FromScene:
         return schema.check(config, file=scene_file, where="model", base_dir=base_dir, reserved=("solver",))
 
     @classmethod
+    def input_files(cls, checked: Mapping[str, Any]) -> list[Path]:
+        """Files the model reads that no ``file`` or ``folder`` key names (a deck's ``*INCLUDE`` s), from the
+        keys :meth:`validate_config` returned: their content enters the key of stored results
+        (:mod:`stepnf.model_key`). Reads, never runs anything; none by default."""
+        return []
+
+    @classmethod
     def from_config(cls, config: Mapping[str, Any], *, base_dir: Path, scene_file: Path | None = None) -> Any:
         """Build from the scene's ``[model]`` table (every key but ``solver``); relative paths are
         relative to ``base_dir`` (the scene's folder)."""

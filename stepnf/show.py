@@ -1,12 +1,20 @@
-"""``stepnf show RESULT.h5``: the table of a stored run, printed again from its JSON document."""
+"""``stepnf show RESULT.h5``: the table of a stored run, printed again from its JSON document.
+
+The file is the user's input: one that is missing, a folder, not a stepnf run file, damaged or edited
+into a malformed document is an :class:`~stepnf.errors.InputFileError` naming it (exit 2, bad input,
+as the README's exit codes say of every file given on the command line). The table is printed with
+the file's strings escaped (:func:`stepnf.table.format_table` passes it through
+:func:`stepnf.printable.printable`): a received file's escape sequences are shown, never obeyed.
+"""
 from __future__ import annotations
 
 import math
 from pathlib import Path
 from typing import Any
 
+from .atomic import reason
 from .backbone import MethodResult
-from .errors import StoreError
+from .errors import InputFileError, StoreError
 from .results import ModeResult, RunResult, read_hdf5
 
 
@@ -53,15 +61,21 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
 
 
 def stored_result(path: str | Path) -> RunResult:
-    """The run stored in ``path`` (a :class:`stepnf.errors.StoreError` for a file that is not one)."""
-    if not Path(path).is_file():
-        raise StoreError(f"{path}: " + ("a folder, not a results file" if Path(path).is_dir() else "no such file"))
-    doc = read_hdf5(path)
+    """The run stored in ``path`` (an :class:`~stepnf.errors.InputFileError` for a file that is not one)."""
+    try:
+        if not Path(path).is_file():
+            raise InputFileError(path, "a folder, not a results file" if Path(path).is_dir() else "no such file")
+    except OSError as exc:  # a name the file system cannot look up (too long)
+        raise InputFileError(path, f"cannot read it: {reason(exc)}") from exc
+    try:
+        doc = read_hdf5(path)
+    except StoreError as exc:
+        raise InputFileError.of(path, exc) from exc
     try:
         result = result_from_document(doc)
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise StoreError(f"{path}: the stored run document is incomplete or malformed "
-                         f"({type(exc).__name__}: {exc})") from exc
+        raise InputFileError(path, f"the stored run document is incomplete or malformed "
+                             f"({type(exc).__name__}: {exc})") from exc
     result.hdf5_path = str(path)
     return result
 
@@ -69,8 +83,8 @@ def stored_result(path: str | Path) -> RunResult:
 def stored_table(path: str | Path) -> str:
     """The table of the run stored in ``path``, as the run printed it (:func:`stepnf.table.format_table`).
 
-    A document edited by hand (a backbone block with a list cut short, a string for a number) is a
-    :class:`stepnf.errors.StoreError` naming the file, not an internal error.
+    A document edited by hand (a backbone block with a list cut short, a string for a number) is an
+    :class:`~stepnf.errors.InputFileError` naming the file (exit 2), not an internal error.
     """
     from .table import format_table
 
@@ -78,4 +92,4 @@ def stored_table(path: str | Path) -> str:
     try:
         return format_table(result)
     except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
-        raise StoreError(f"{path}: the stored run document is malformed ({type(exc).__name__}: {exc})") from exc
+        raise InputFileError(path, f"the stored run document is malformed ({type(exc).__name__}: {exc})") from exc

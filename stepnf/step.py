@@ -92,20 +92,16 @@ class ForceEvaluator:
         for i, start in enumerate(range(0, len(U), self.batch_size)):
             chunk = U[start:start + self.batch_size]
             cp = self.checkpoint if plan is not None else None
-            res = cp.load(plan, i, chunk) if cp is not None else None
+            res = cp.load(plan, i, chunk, probe=self._evaluate) if cp is not None else None
             if res is not None and reduce is None and res.shape != chunk.shape:
                 res = None  # a stored chunk of another shape is not these forces: computed again
             if res is None:
-                res = np.asarray(self._forces(chunk), dtype=float)
-                if reduce is None and res.shape != chunk.shape:
-                    raise NumericalError(f"the solver returned forces of shape {res.shape} for {chunk.shape} "
-                                         "displacement fields")
-                self.counters.force_evaluations += len(chunk)
-                self.counters.solver_runs += 1
+                res = self._evaluate(chunk)
+                first = res[:1].copy() if cp is not None else None  # the probe of a rerun (stepnf.checkpoint)
                 if reduce is not None:
                     res = reduce(res)
                 if cp is not None:
-                    cp.store(plan, i, chunk, res)
+                    cp.store(plan, i, chunk, res, probe=first)
             if reduce is None:
                 out[start:start + len(chunk)] = res
             else:
@@ -113,6 +109,16 @@ class ForceEvaluator:
         if reduce is None:
             return out
         return np.concatenate(parts, axis=0) if parts else reduce(np.zeros((0, self.n)))
+
+    def _evaluate(self, U: np.ndarray) -> np.ndarray:
+        """The solver's forces (m, n) of the fields ``U`` (m, n), counted (no checkpoint involved)."""
+        res = np.asarray(self._forces(U), dtype=float)
+        if res.shape != U.shape:
+            raise NumericalError(f"the solver returned forces of shape {res.shape} for {U.shape} "
+                                 "displacement fields")
+        self.counters.force_evaluations += len(U)
+        self.counters.solver_runs += 1
+        return res
 
 
 def step_amplitude(phi: np.ndarray, policy: StepPolicy, length: float | None,
@@ -149,12 +155,14 @@ class MasterStep:
     error_G: float = 0.0
     error_h: float = 0.0
     flags: list[dict] = field(default_factory=list)
+    #: ``H(phi_p, phi_p, phi_p)`` (n,) and at the check amplitude (for the twins' cubic coupling)
+    Hv: np.ndarray | None = None
+    Hv_check: np.ndarray | None = None
 
 
-def _gh_from_pair(fp: np.ndarray, fm: np.ndarray, Kphi: np.ndarray, phi: np.ndarray, q: float):
-    Gv = (fp + fm) / (2.0 * q * q)
-    Hv = (fp - fm - 2.0 * q * Kphi) / (2.0 * q ** 3)
-    return Gv, float(phi @ Hv)
+def _gh_vectors(fp: np.ndarray, fm: np.ndarray, Kphi: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray]:
+    """``G(phi, phi)`` and ``H(phi, phi, phi)`` from the forces at ``+-q phi``."""
+    return (fp + fm) / (2.0 * q * q), (fp - fm - 2.0 * q * Kphi) / (2.0 * q ** 3)
 
 
 def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: float,
@@ -196,11 +204,13 @@ def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: n
         phi, qj, p = Phi[:, j], float(q[j]), modes[j]
         Kphi = K @ phi
         Fj = F[per * j: per * (j + 1)]
-        Gv, h = _gh_from_pair(Fj[0], Fj[1], Kphi, phi, qj)
-        res = MasterStep(p=p, q=qj, Gv=Gv, h=h)
+        Gv, Hv = _gh_vectors(Fj[0], Fj[1], Kphi, qj)
+        res = MasterStep(p=p, q=qj, Gv=Gv, h=float(phi @ Hv), Hv=Hv)
+        h = res.h
         if policy.check:
             q2 = policy.check_ratio * qj
-            Gv2, h2 = _gh_from_pair(Fj[2], Fj[3], Kphi, phi, q2)
+            Gv2, res.Hv_check = _gh_vectors(Fj[2], Fj[3], Kphi, q2)
+            h2 = float(phi @ res.Hv_check)
             lin = max(float(np.linalg.norm(Kphi)), 1e-300)
             w2 = max(float(phi @ Kphi), 1e-300)
             res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
@@ -237,21 +247,23 @@ def targeted_steps_tangent(tangent: Callable[[np.ndarray], sp.spmatrix], K: sp.s
     for j, p in enumerate(modes):
         phi, qj = Phi[:, j], float(q[j])
 
-        def gh(a: float) -> tuple[np.ndarray, float]:
+        def gh(a: float) -> tuple[np.ndarray, np.ndarray]:
             # the adapter's tangents enter here: real, (n, n), finite and symmetric, else AdapterError
             Kp, Km = (checked_matrix(tangent(s * phi), "K_T", owner, K.shape[0])
                       for s in (a, -a))
             if counters is not None:
                 counters.tangent_evaluations += 2
             Gv = (Kp - Km) @ phi / (4.0 * a)
-            h = float(phi @ ((Kp + Km - 2.0 * K) @ phi)) / (6.0 * a * a)
-            return np.asarray(Gv).ravel(), h
+            Hv = ((Kp + Km - 2.0 * K) @ phi) / (6.0 * a * a)  # H(phi, phi, phi)
+            return np.asarray(Gv).ravel(), np.asarray(Hv).ravel()
 
-        Gv, h = gh(qj)
-        res = MasterStep(p=p, q=qj, Gv=Gv, h=h)
+        Gv, Hv = gh(qj)
+        res = MasterStep(p=p, q=qj, Gv=Gv, h=float(phi @ Hv), Hv=Hv)
+        h = res.h
         if policy.check:
             q2 = policy.check_ratio * qj
-            Gv2, h2 = gh(q2)
+            Gv2, res.Hv_check = gh(q2)
+            h2 = float(phi @ res.Hv_check)
             Kphi = K @ phi
             res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
             res.error_G = qj * float(np.linalg.norm(Gv - Gv2)) / max(float(np.linalg.norm(Kphi)), 1e-300)

@@ -32,24 +32,30 @@ client) writes it, and every write builds the new store in memory and writes
 it atomically (:mod:`stepnf.atomic`), so a killed sweep or a full disk leaves
 the previous, complete store: a
 rerun resumes where it stopped and never recomputes a stored case (failed
-cases are retried only with ``--retry-failed``).
+cases are retried only with ``--retry-failed``). Each case is stored with the
+key of what determined it (its resolved scene and the content of every input
+file, :mod:`stepnf.model_key`): a store never mixes models, and a rerun whose
+cases have another key refuses, or with ``recompute_stale`` computes the stale
+cases again (:mod:`stepnf.sweep_store`).
 """
 from __future__ import annotations
 
-import contextlib
 import copy
 import itertools
-import json
 import logging
 import os
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from .config import check_name, check_number, check_table, check_text, check_unknown, describe_value, read_toml
 from .dask_address import check_scheduler
-from .errors import SceneError, StoreError
+from .errors import SceneError, StaleWarning
+from .model_key import digest
+from .sweep_store import (STORE_FORMAT, STORE_FORMAT_VERSION, read_store, remove_cases, stale_cases,  # noqa: F401
+                          write_case)
 
 TOP_KEYS = ("sweep", "output")
 SWEEP_KEYS = ("name", "base", "vary", "scenes", "dask")
@@ -72,6 +78,8 @@ class Case:
     data: dict[str, Any]
     file: str
     base_dir: str
+    #: What determines the case's result (:func:`stepnf.model_key.scene_key`), set when the sweep is read.
+    key: dict[str, Any] | None = None
 
 
 @dataclass
@@ -83,6 +91,9 @@ class Sweep:
     n_workers: int | None = None
     threads_per_worker: int = 1
     file: Path | None = None
+    #: The user's permission for programs the scenes name (:mod:`stepnf.programs`), decided when the sweep
+    #: was loaded and passed to every case (workers never decide it again).
+    allow_programs: bool = False
 
 
 def _set(data: dict, dotted: str, value: Any) -> None:
@@ -100,12 +111,22 @@ def _fmt(v: Any) -> str:
     return (f"{v:g}" if isinstance(v, float) else str(v)).replace("%", "%25").replace("/", "%2F")
 
 
-def load_sweep(path: str | Path) -> Sweep:
+def load_sweep(path: str | Path, *, allow_programs: bool | None = None) -> Sweep:
     """Read a sweep file, check every key and expand its cases (each validated as a scene).
 
     Anything malformed is a :class:`SceneError` naming the sweep file and the key (exit code 2)
-    before a worker starts or the store is touched.
+    before a worker starts or the store is touched. ``allow_programs``: the user's permission for the
+    programs the scenes name (:mod:`stepnf.programs`; ``None``: the permission in force), kept on the sweep.
     """
+    from .programs import allow_programs as allowing, programs_allowed
+
+    with allowing(allow_programs):
+        sweep = _load_sweep(path)
+        sweep.allow_programs = programs_allowed()
+    return sweep
+
+
+def _load_sweep(path: str | Path) -> Sweep:
     path = Path(path).resolve()
     raw, _ = read_toml(path, "sweep")
     check_unknown(path, "", raw, TOP_KEYS)
@@ -141,10 +162,13 @@ def _check_case(path: Path, key: str, case: Case) -> Case:
     if case.id in ("", ".", "..") or len(case.id.encode("utf-8", "surrogatepass")) > 1000:
         raise SceneError(path, key, f"case id {case.id!r} cannot name a group of the store; rename the scene "
                          "or shorten the values")
+    from .model_key import scene_key
+
     try:
-        parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir))
+        scene = parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir))
     except SceneError as exc:
         raise SceneError(path, key, f"case {case.id}: {exc}") from exc
+    case.key = scene_key(scene)
     return case
 
 
@@ -220,6 +244,10 @@ def _dask(path: Path, dk: Any) -> tuple[str | None, int | None, int]:
         scheduler = check_text(path, "sweep.dask.scheduler", dk["scheduler"], "a scheduler address such as "
                           "\"tcp://10.0.0.5:8786\"")
         check_scheduler(path, "sweep.dask.scheduler", scheduler)
+        from .programs import check_allowed  # Dask unpickles the cluster's answers: code the file's cluster sends
+
+        check_allowed(path, "sweep.dask.scheduler", f"scheduler = {scheduler!r}: the sweep file names the Dask "
+                      "cluster whose answers stepnf unpickles (runs); or give it with --scheduler")
     n_workers = None
     if "n_workers" in dk:
         n_workers = int(check_number(path, "sweep.dask.n_workers", dk["n_workers"], integer=True, lo=1,
@@ -229,119 +257,17 @@ def _dask(path: Path, dk: Any) -> tuple[str | None, int | None, int]:
     return scheduler, n_workers, threads
 
 
-# ------------------------------------------------------------------ the store
-STORE_FORMAT = "stepnf-sweep"
-STORE_FORMAT_VERSION = 1  # stores written before versions existed have the same layout
-
-
-def read_store(path: str | Path) -> dict[str, dict[str, Any]]:
-    """Stored cases by id: ``{"status", "params", "result" (dict) or "error", "elapsed"}``."""
-    import h5py
-
-    path = Path(path)
-    if not path.exists():
-        return {}
-    out: dict[str, dict[str, Any]] = {}
-    try:
-        with h5py.File(path, "r") as f:
-            _check_store(f, path)
-            for cid, g in f.get("cases", {}).items():
-                rec = {k: g.attrs[k] for k in g.attrs}
-                for k in ("params", "result"):
-                    if k in rec:
-                        rec[k] = json.loads(rec[k])
-                        if not isinstance(rec[k], dict):
-                            raise TypeError(f"case {cid}: {k} holds a {type(rec[k]).__name__}, not a table")
-                out[cid] = rec
-    except (OSError, KeyError, ValueError, TypeError, AttributeError, RecursionError) as exc:  # ValueError: JSON
-        raise StoreError(f"{path}: the sweep store is unreadable (corrupt or truncated): {exc}; "
-                         "it was left untouched") from exc
-    return out
-
-
-def _check_store(f: Any, path: Path) -> int:
-    from .atomic import check_format
-
-    try:
-        return check_format(f.attrs, path, format=STORE_FORMAT, version=STORE_FORMAT_VERSION, what="sweep store")
-    except StoreError as exc:
-        if "not a stepnf" in str(exc):
-            raise StoreError(f"{exc}; move it away or choose another [output] dir / [sweep] name") from None
-        raise
-
-
-def write_case(path: Path, case_id: str, record: Mapping[str, Any], sweep_info: Mapping[str, Any]) -> None:
-    """Add one case to the store safely: update a copy in memory, then write it atomically.
-
-    The store is read, updated in memory and written by :func:`stepnf.atomic.write_bytes`: a
-    failed write (full disk) raises :class:`stepnf.errors.OutputError` and leaves the previous
-    store untouched. A store of a newer ``format_version`` is refused (:class:`StoreError`).
-    Concurrent writers (two sweeps of one store) are serialised by a lock on the folder.
-    """
-    path = Path(path)
-    with _folder_lock(path.parent):  # two sweeps on one store: no case lost between read and replace
-        _write_case_locked(path, case_id, record, sweep_info)
-
-
-@contextlib.contextmanager
-def _folder_lock(folder: Path):
-    """Exclusive ``flock`` on the store's folder while a case is added (best effort: no lock if refused).
-
-    The folder itself is locked, not a lock file, so nothing is left beside the store.
-    """
-    import fcntl
-
-    fd = -1
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
-        fcntl.flock(fd, fcntl.LOCK_EX)
-    except OSError:
-        pass  # the write below reports a folder that cannot be used
-    try:
-        yield
-    finally:
-        if fd >= 0:
-            os.close(fd)  # releases the lock
-
-
-def _write_case_locked(path: Path, case_id: str, record: Mapping[str, Any], sweep_info: Mapping[str, Any]) -> None:
-    from .atomic import hdf5_bytes, write_bytes
-
-    try:
-        base = path.read_bytes()
-    except FileNotFoundError:
-        base = None
-    except OSError as exc:
-        raise StoreError(f"{path}: cannot read the sweep store: {exc}") from exc
-
-    def fill(f: Any) -> None:
-        if base is not None:
-            _check_store(f, path)
-        f.attrs["sweep"] = json.dumps(sweep_info, default=str)
-        cases = f.require_group("cases")
-        if case_id in cases:
-            del cases[case_id]
-        g = cases.create_group(case_id)
-        for k, v in record.items():
-            g.attrs[k] = json.dumps(v, default=str) if isinstance(v, (dict, list)) else v
-
-    try:
-        data = hdf5_bytes(fill, format=STORE_FORMAT, format_version=STORE_FORMAT_VERSION, base=base)
-    except (OSError, KeyError) as exc:
-        raise StoreError(f"{path}: the sweep store is unreadable (corrupt or truncated): {exc}; "
-                         "it was left untouched") from exc
-    write_bytes(path, data, what="sweep store")
-
-
 # ------------------------------------------------------------------ execution
-def run_case(data: dict, file: str, base_dir: str) -> dict:
-    """Worker task: run one scene and return its JSON document (nothing written by the worker)."""
+def run_case(data: dict, file: str, base_dir: str, allow_programs: bool = False) -> dict:
+    """Worker task: run one scene and return its JSON document (nothing written by the worker).
+
+    ``allow_programs``: the permission the user gave where the sweep started (:mod:`stepnf.programs`),
+    whatever the worker's environment says."""
     from .pipeline import run_scene
     from .scene import parse_scene
 
     logging.getLogger("distributed").setLevel(logging.WARNING)  # in the worker too
-    scene = parse_scene(data, file=Path(file), base_dir=Path(base_dir))
+    scene = parse_scene(data, file=Path(file), base_dir=Path(base_dir), allow_programs=bool(allow_programs))
     t0 = time.perf_counter()
     res = run_scene(scene, write=False)
     doc = res.to_dict()
@@ -354,24 +280,37 @@ class SweepReport:
     done: list[str] = field(default_factory=list)
     failed: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
+    stale: list[str] = field(default_factory=list)  # stored for another model, computed again
 
 
 def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | None = None,
-              retry_failed: bool = False, progress: Callable[[str], None] | None = None) -> SweepReport:
-    """Run every case not yet stored on Dask; store each one as it finishes."""
+              retry_failed: bool = False, recompute_stale: bool = False,
+              progress: Callable[[str], None] | None = None) -> SweepReport:
+    """Run every case not yet stored on Dask; store each one as it finishes.
+
+    A store holding cases of another model (:func:`stepnf.sweep_store.stale_cases`) is refused with
+    a :class:`SceneError` naming the store and what changed, before anything runs or is written;
+    with ``recompute_stale`` those cases are computed again (one :class:`StaleWarning` says how many)
+    and the stale ones no longer in the sweep are removed.
+    """
     from dask.distributed import Client, LocalCluster, as_completed
 
     say = progress or (lambda s: None)
     stored = read_store(sweep.store)
-    report = SweepReport()
+    info = {"name": sweep.name, "file": str(sweep.file), "cases": [c.id for c in sweep.cases]}
+    keys = {c.id: c.key if c.key is not None else _case_key(c) for c in sweep.cases}
+    stale, gone = stale_cases(stored, keys)
+    if stale or gone:
+        _stale(sweep, stale, gone, recompute_stale)
+        remove_cases(sweep.store, sorted(gone), info)
+    report = SweepReport(stale=sorted(stale))
     todo = []
     for c in sweep.cases:
         rec = stored.get(c.id)
-        if rec is not None and (rec.get("status") == "done" or not retry_failed):
+        if rec is not None and c.id not in stale and (rec.get("status") == "done" or not retry_failed):
             report.skipped.append(c.id)
         else:
             todo.append(c)
-    info = {"name": sweep.name, "file": str(sweep.file), "cases": [c.id for c in sweep.cases]}
     say(f"sweep {sweep.name}: {len(sweep.cases)} cases, {len(report.skipped)} already stored, "
         f"{len(todo)} to run -> {sweep.store}")
     if not todo:
@@ -395,7 +334,8 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
                                dashboard_address=None)
         client = Client(cluster)
     try:
-        futures = {client.submit(run_case, c.data, c.file, c.base_dir, key=f"stepnf-{sweep.name}-{c.id}",
+        futures = {client.submit(run_case, c.data, c.file, c.base_dir, sweep.allow_programs,
+                                 key=f"stepnf-{sweep.name}-{c.id}",
                                  pure=False): c for c in todo}
         running = len(futures)
         for fut in as_completed(futures):
@@ -404,19 +344,52 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
             if fut.status == "finished":
                 doc = fut.result()
                 write_case(sweep.store, c.id, {"status": "done", "params": c.params, "result": doc,
-                                               "elapsed": float(doc.get("elapsed", 0.0))}, info)
+                                               "elapsed": float(doc.get("elapsed", 0.0)),
+                                               "key": digest(keys[c.id]), "inputs": keys[c.id]}, info)
                 report.done.append(c.id)
             else:
                 exc = fut.exception()
                 write_case(sweep.store, c.id, {"status": "failed", "params": c.params,
-                                               "error": f"{type(exc).__name__}: {exc}"}, info)
+                                               "error": f"{type(exc).__name__}: {exc}",
+                                               "key": digest(keys[c.id]), "inputs": keys[c.id]}, info)
                 report.failed.append(c.id)
             total = len(sweep.cases)
             ndone = len(report.done) + len([s for s in report.skipped if stored[s].get("status") == "done"])
             say(f"sweep {sweep.name}: {ndone}/{total} done, {running} running, "
                 f"{len(report.failed)} failed  (last: {c.id})")
+    except KeyboardInterrupt as exc:  # Ctrl-C or a signal (stepnf.signals): our workers' solver processes too
+        if cluster is not None:  # (never on a shared scheduler's workers: other clients' runs are theirs)
+            from .signals import stop_children
+
+            try:
+                client.run(stop_children, getattr(exc, "signum", 2))
+            except Exception:  # noqa: BLE001 - a worker already gone: its processes went with it or never were
+                pass
+        raise
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
     return report
+
+
+def _case_key(case: Case) -> dict[str, Any]:
+    """The key of a case built without one (not through :func:`load_sweep`)."""
+    from .model_key import scene_key
+    from .scene import parse_scene
+
+    return scene_key(parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir)))
+
+
+def _stale(sweep: Sweep, stale: Mapping[str, str], gone: Mapping[str, str], recompute: bool) -> None:
+    """Refuse a store with cases of another model (exit 2), or with ``recompute`` say what is computed again."""
+    cid, why = next(iter({**stale, **gone}.items()))
+    n = len(stale) + len(gone)
+    if not recompute:
+        raise SceneError(sweep.file, None, f"the sweep store {sweep.store} holds {n} case{'s' * (n != 1)} computed "
+                         f"for another model (case {cid}: {why}); a store never mixes models: rerun with "
+                         "--recompute-stale to compute them again (their stored results are replaced), or give "
+                         "this sweep a new store ([sweep] name or [output] dir)")
+    removed = f"; {len(gone)} stale cases no longer in the sweep removed" if gone else ""
+    warnings.warn(f"{sweep.store}: {len(stale)} stored case{'s' * (len(stale) != 1)} computed for another model "
+                  f"(case {cid}: {why}) recomputed{removed}", StaleWarning, stacklevel=3)

@@ -4,8 +4,9 @@ from __future__ import annotations
 import math
 
 from .backbone_table import backbone_lines
+from .flags import printed_under_table, t_unusable
+from .printable import printable
 from .results import RunResult, label_text
-from .trust import unusable_reason
 
 
 def _num(x: float | None, fmt: str = "{:+.4e}") -> str:
@@ -19,9 +20,10 @@ def _num(x: float | None, fmt: str = "{:+.4e}") -> str:
 def format_table(res: RunResult) -> str:
     """One row per master mode and method: T, Gamma, behaviour, rho, flags.
 
-    A T the tool knows to be wrong (:mod:`stepnf.trust`) is shown as ``n/a``,
-    with its Gamma and behaviour, and the reason is printed under the table;
-    the JSON document and the HDF5 file keep the number.
+    A T the tool knows to be wrong (:func:`stepnf.flags.t_unusable`: infinite, a master without a
+    single-mode manifold, a truncated modal sum, forces too inaccurate) is shown as ``n/a``, with its
+    Gamma and behaviour, and the reason is printed under the table; the JSON document and the HDF5
+    file keep the number. Which flags get a line of their own: :mod:`stepnf.flags`.
     """
     lines = []
     head = res.model.get("adapter") or res.model.get("model") or ""
@@ -41,9 +43,9 @@ def format_table(res: RunResult) -> str:
                    _num(m.omega, "{:.6g}") if first else "",
                    _num(m.omega_bar, "{:.4f}") if first else "",
                    _num(m.rho, "{:.3f}") if first else ""]
-            reason = unusable_reason(r)
-            if reason:
-                unusable.append((m.index, name, reason))
+            verdict = t_unusable(r)
+            if verdict:
+                unusable.append((m.index, name, verdict))
                 row += [name, "n/a"] + (["n/a"] if has_gamma else []) + ["n/a", flags or "-"]
             else:
                 row += [name, _num(r.T)] + ([_num(r.gamma, "{:+.4f}")] if has_gamma else [])
@@ -60,20 +62,22 @@ def format_table(res: RunResult) -> str:
                  f"; total {res.timings.get('total', 0.0):.2f} s")
     for f in res.flags:
         lines.append(f"note: {f['message']}")
-    shown = {(i, name) for i, name, _ in unusable}
-    for i, name, reason in unusable:
-        lines.append(f"n/a [{i} {name}]: {reason} (the JSON document and the HDF5 file keep the number)")
+    said = {(i, name): verdict for i, name, verdict in unusable}
+    grouped: dict[tuple[int, str], list[str]] = {}  # one line per mode and reason (a master-wide one: every method)
+    for i, name, (_, reason) in unusable:
+        grouped.setdefault((i, reason), []).append(name)
+    for (i, reason), names in grouped.items():
+        lines.append(f"n/a [{i} {', '.join(names)}]: {reason} (the JSON document and the HDF5 file keep the number)")
     for m in res.modes:
         for name, r in m.methods.items():
             for f in r.flags:
-                if (m.index, name) in shown and f.get("kind") == "modal_truncation":
-                    continue  # said by its n/a line
-                if f.get("kind", "").startswith("internal_resonance") or f.get("kind") in (
-                        "step_accuracy", "modal_truncation"):
-                    lines.append(f"flag [{m.index} {r.method}]: {f['message']}")
+                kind, reason = said.get((m.index, name), ("", ""))
+                if not printed_under_table(f) or f.get("kind") == kind or str(f.get("message")) in reason:
+                    continue  # not a line of its own, or said by its n/a line
+                lines.append(f"flag [{m.index} {r.method}]: {f['message']}")
     lines += backbone_lines(res)
     if res.hdf5_path:
         lines.append(f"results: {res.hdf5_path}")
     for p in res.extra_files:
         lines.append(f"{'figure' if str(p).endswith('.png') else 'fields'}: {p}")
-    return "\n".join(lines)
+    return printable("\n".join(lines))  # names, labels and messages may come from a received file

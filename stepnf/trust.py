@@ -1,10 +1,14 @@
-"""Which printed numbers the tool itself knows to be wrong.
+"""Which printed numbers the tool itself knows to be wrong (kept for its callers: the rules live in
+:mod:`stepnf.flags`, the one catalogue of flag kinds).
 
 The printed table shows such a T (and its Gamma and behaviour) as ``n/a`` with
 the reason; the JSON document and the HDF5 file keep the number and its flags,
 for whoever wants to study the failure (the paper's point is precisely that
-modal NF fails on a 3D model). Two cases are known wrong, not merely uncertain:
+modal NF fails on a 3D model). Known wrong, not merely uncertain:
 
+* **divergence**: T is infinite (an exact internal resonance: a zero denominator);
+* **no single-mode manifold**: the master drives a degenerate twin, or a zero-frequency mode
+  (``twin_driven``, ``rigid_mode_driven``);
 * **modal truncation**: the retained modes carry less than
   :data:`TRUNCATION_UNUSABLE` of ``G(phi_p, phi_p)`` (M^-1 norm). A modal sum
   then misses most of the quadratic coupling; on a 3D model of a shell the
@@ -16,30 +20,15 @@ modal NF fails on a 3D model). Two cases are known wrong, not merely uncertain:
 """
 from __future__ import annotations
 
-from .backbone import MethodResult
+from typing import Any
 
-#: Below this share of G(phi_p, phi_p) carried by the retained modes, a modal-sum T is not shown.
-TRUNCATION_UNUSABLE = 0.5
-#: At or above this relative change of T between the two STEP amplitudes, T is not shown.
-STEP_UNUSABLE = 1.0
+from .flags import STEP_UNUSABLE, TRUNCATION_UNUSABLE, t_unusable
 
-
-def _captured_fraction(r: MethodResult) -> float | None:
-    """The share of G(phi_p, phi_p) on the retained modes, from the result or its flag."""
-    if r.extra.get("captured_fraction") is not None:
-        return float(r.extra["captured_fraction"])
-    values = [float(f["value"]) for f in r.flags
-              if f.get("kind") == "modal_truncation" and f.get("value") is not None]
-    return min(values) if values else None
+__all__ = ["STEP_UNUSABLE", "TRUNCATION_UNUSABLE", "unusable_reason"]
 
 
-def unusable_reason(r: MethodResult) -> str | None:
-    """Why ``r.T`` is known to be wrong (a short phrase for the table), or ``None`` if it is not."""
-    frac = _captured_fraction(r)
-    if frac is not None and float(frac) < TRUNCATION_UNUSABLE:
-        n = f"the {r.retained_modes} retained modes" if r.retained_modes else "the retained modes"
-        return f"{n} carry {100 * float(frac):.2g}% of G(phi_p, phi_p): the modal sum misses the rest"
-    if r.T_error is not None and r.T_error >= STEP_UNUSABLE:
-        return (f"T changes by {100 * r.T_error:.3g}% between the two STEP amplitudes: "
-                "not even its sign is established")
-    return None
+def unusable_reason(r: Any) -> str | None:
+    """Why ``r.T`` is known to be wrong (a short phrase for the table), or ``None`` if it is not
+    (:func:`stepnf.flags.t_unusable`)."""
+    verdict = t_unusable(r)
+    return verdict[1] if verdict else None

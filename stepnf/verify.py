@@ -5,8 +5,9 @@ For each master mode and a few amplitudes ``A`` of the master coordinate ``q = p
 independently of the parametrisation:
 
 * **shooting** (:class:`stepnf.periodic.Shooting`: Newton on the period and the initial state,
-  DOP853 with ``rtol = 1e-12``) for models up to :data:`SHOOTING_LIMIT` dofs (the variational
-  equations are n x n), started from the parametrisation's point at ``theta = 0``;
+  DOP853 with ``rtol = 1e-12``, or implicit Gauss-Legendre collocation of order 16 for a stiff model,
+  ``w_max / w`` above :data:`stepnf.periodic.STIFF_RATIO`) for models up to :data:`SHOOTING_LIMIT`
+  dofs (the variational equations are n x n), started from the parametrisation's point at ``theta = 0``;
 * **time integration** (:mod:`stepnf.integrate`: the energy-conserving scheme over ``periods``
   periods at two step sizes, Richardson-extrapolated) from the parametrisation's point
   ``(x, v)(theta = 0, rho(A))`` for larger models.
@@ -16,6 +17,9 @@ how far the orbit is from the manifold: at sampled states, ``(rho, theta)`` is t
 parametrisation with the same master coordinate and rate (``phi^T M x = q``,
 ``phi^T M v = q'``: two scalar equations, Newton), and the distance is the energy norm
 ``sqrt(dx^T K dx + dv^T M dv)`` over ``sqrt(x^T K x + v^T M v)`` (relative), the largest over the orbit.
+
+Progress (:class:`OrbitClock`, through ``progress``: stderr in ``stepnf verify``): before each orbit a line
+with the mode, the amplitude, ``orbit k of n``, the time elapsed and an estimate of the time left.
 """
 from __future__ import annotations
 
@@ -123,22 +127,27 @@ class Check:
 
 
 def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float, *,
-                tangent: Callable | None = None, samples: int = 32) -> Check:
-    """The brake orbit of amplitude ``A`` by shooting, from the parametrisation's guess."""
+                tangent: Callable | None = None, samples: int = 32, forces: Callable | None = None,
+                integrator: str = "auto") -> Check:
+    """The brake orbit of amplitude ``A`` by shooting, from the parametrisation's guess.
+
+    ``forces`` the batched internal forces (the implicit integrator sends its stages in one call);
+    ``integrator`` as :class:`stepnf.periodic.Shooting` (``"auto"``: implicit for a stiff model).
+    """
     from .periodic import Shooting
 
     t0 = time.perf_counter()
     bb = res.backbone()
     rho = bb.rho_at(A)
-    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent)
+    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent, forces=forces, integrator=integrator)
     orb = sh.at_amplitude(A, guess=(res.displacement(0.0, rho), 2 * np.pi / bb.frequency(rho)))
-    sol = sh.integrate(orb.x0, orb.period, dense=True)
+    states = sh.samples(orb.x0, orb.period, samples)
     chart = Chart(res, K, M)
     n = len(res.phi)
     rho = bb.rho_at(orb.amplitude)
-    dist = max(chart.distance(y[:n], y[n:], rho) for y in sol.sol(np.linspace(0, orb.period, samples + 1)).T)
+    dist = max(chart.distance(y[:n], y[n:], rho) for y in states)
     return Check(A, float(bb.omega_at(orb.amplitude)[0]), orb.omega, orb.amplitude, dist, "shooting",
-                 None, time.perf_counter() - t0, {"newton_iterations": orb.newton_iterations})
+                 None, time.perf_counter() - t0, {"newton_iterations": orb.newton_iterations, **sh.work})
 
 
 def by_integration(res: Any, K, M, forces: Callable[[np.ndarray], np.ndarray], A: float, *,
@@ -206,7 +215,7 @@ def scene_amplitudes(spec: Any, limit: float | None) -> tuple[list[float], str]:
 
 def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, periods: float = 3.0,
                  rtol: float = 1e-6, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0),
-                 progress: Callable[[str], None] | None = None) -> dict:
+                 progress: Callable[[str], None] | None = None, integrator: str = "auto") -> dict:
     """Run the scene's backbone (:func:`stepnf.pipeline.run_scene`), then check every master mode.
 
     Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``,
@@ -217,7 +226,9 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
     ``fractions`` of that limit (:func:`default_amplitudes`); ``rtol`` the
     integration's frequency accuracy (:func:`stepnf.integrate.measure`). A scene without
     ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit is listed
-    under ``failed`` (:func:`failed_orbits`) and the other checks still run.
+    under ``failed`` (:func:`failed_orbits`) and the other checks still run. ``integrator``: the
+    shooting's (:class:`stepnf.periodic.Shooting`: ``"auto"`` implicit for a stiff model); ``progress``
+    gets a line before each orbit (:class:`OrbitClock`).
     """
     from .adapter import SolverAdapter, checked_matrices
     from .pipeline import run_scene
@@ -253,11 +264,13 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
         labels = {m.index: m.label for m in getattr(result, "modes", [])}
         doc = {"scene": str(where), "n_dofs": int(n), "method": "shooting" if shooting else "integration",
                "periods": None if shooting else periods, "modes": []}
+        blocks = {m.index: getattr(m, "backbone", None) for m in getattr(result, "modes", [])}
+        plan = []  # (who, res, entry, amplitudes): every orbit known before the first, for the estimate
         for p, res in sorted(backbones.items()):
             bb = res.backbone()
             who = f"master mode {p}" + (f" {labels[p]}" if labels.get(p) is not None else "")
             tol = getattr(spec, "tolerance", 1e-3)
-            limit, why = bb.validity_limit(tol)  # once per mode: each call marches the whole range
+            limit, why = _validity_limit(bb, blocks.get(p), tol)
             amps, src = (list(amplitudes), "--amplitudes") if amplitudes else scene_amplitudes(spec, limit)
             if not amps:
                 amps, src = default_amplitudes(bb, (limit, why), fractions, tol)
@@ -268,23 +281,71 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                                      f"differ by more than {tol:g}); no trustworthy starting orbit there")
             entry = {"index": int(p), "label": _label(labels.get(p)), "omega": float(res.omega),
                      "order": int(res.order), "amplitudes_from": src, "checks": []}
+            plan.append((who, res, entry, amps))
+            doc["modes"].append(entry)
+        clock = OrbitClock(sum(len(a) for *_, a in plan), say)
+        for who, res, entry, amps in plan:
             for A in amps:
-                say(f"{who}: the full model's orbit at A = {A:.6g}")
+                clock.start(f"{who}, A = {A:.6g}")
                 try:
                     if shooting:
-                        chk = by_shooting(res, K, M, adapter.internal_force, A,
-                                          tangent=(lambda u: tangent(u).toarray()) if tangent else None)
+                        chk = by_shooting(res, K, M, adapter.internal_force, A, forces=adapter.internal_forces,
+                                          tangent=(lambda u: tangent(u).toarray()) if tangent else None,
+                                          integrator=integrator)
                     else:
                         chk = by_integration(res, K, M, adapter.internal_forces, A, periods=periods, rtol=rtol,
                                              tangent=tangent)
                 except NumericalError as exc:  # reported with the checks that worked (exit 3: stepnf.cli)
                     entry.setdefault("failed", []).append({"amplitude": float(A), "error": f"{who}: {exc}"})
                     continue
+                finally:
+                    clock.stop()
                 entry["checks"].append(check_dict(chk, res.omega))
-            doc["modes"].append(entry)
+        clock.finish()
         return doc
     finally:
         adapter.close()
+
+
+def _validity_limit(bb: Any, block: dict | None, tol: float) -> tuple[float | None, str]:
+    """The backbone's validity limit at ``tol``: the run's (its ``modes[i].backbone`` block, computed at
+    the same tolerance) when there, else computed (each call marches the whole range: seconds)."""
+    if isinstance(block, dict) and "valid_reason" in block and block.get("tolerance") == tol:
+        v = block.get("valid_up_to")
+        return (None if v is None else float(v)), str(block["valid_reason"])
+    return bb.validity_limit(tol)
+
+
+class OrbitClock:
+    """The progress line of ``verify``: before each orbit, which one (mode, amplitude), ``k of n``, the
+    time elapsed since the clock started and an estimate of the time left (the mean time of the orbits
+    done times the orbits left; none before the first has finished); at the end, the total.
+    ``say(text)``: where the lines go (stepnf.cli: stderr)."""
+
+    def __init__(self, total: int, say: Callable[[str], None]):
+        self.total, self.say = int(total), say
+        self.done, self.spent = 0, 0.0
+        self.t0 = time.perf_counter()
+        self._t = None
+
+    def start(self, what: str) -> None:
+        self._t = time.perf_counter()
+        elapsed = self._t - self.t0
+        left = (f"about {_seconds(self.spent / self.done * (self.total - self.done))} left" if self.done
+                else "estimate after the first orbit")
+        self.say(f"verify: {what}: orbit {self.done + 1} of {self.total} (elapsed {_seconds(elapsed)}, {left})")
+
+    def stop(self) -> None:
+        self.spent += time.perf_counter() - self._t
+        self.done += 1
+
+    def finish(self) -> None:
+        self.say(f"verify: {self.done} orbit{'s' if self.done != 1 else ''} in {_seconds(self.spent)} "
+                 f"(elapsed {_seconds(time.perf_counter() - self.t0)})")
+
+
+def _seconds(t: float) -> str:
+    return f"{t:.1f} s" if t < 120 else f"{int(t // 60)} min {int(t % 60):02d} s"
 
 
 def _label(label: Any) -> Any:
@@ -307,8 +368,12 @@ def failed_orbits(doc: dict) -> int:
 
 def format_report(doc: dict) -> str:
     """The side-by-side table ``stepnf verify`` prints."""
-    how = ("shooting (DOP853, rtol 1e-12)" if doc["method"] == "shooting" else
-           f"time integration over {doc['periods']:g} periods (energy-conserving, Richardson over 2 steps)")
+    works = [c.get("work") or {} for m in doc["modes"] for c in m["checks"]]
+    stiff = [w["stiffness_ratio"] for w in works if w.get("method") == "implicit"]
+    how = ("shooting (DOP853, rtol 1e-12)" if doc["method"] == "shooting" and not stiff else
+           f"shooting (stiff, w_max/w up to {max(stiff):.3g}: implicit Gauss-Legendre of order 16"
+           f"{', DOP853 where w_max/w is small' if len(stiff) < len(works) else ''})" if doc["method"] == "shooting"
+           else f"time integration over {doc['periods']:g} periods (energy-conserving, Richardson over 2 steps)")
     lines = [f"{doc['scene']}: {doc['n_dofs']} dofs; full-model orbits by {how}"]
     for m in doc["modes"]:
         lab = "" if m["label"] is None else f" {tuple(m['label']) if isinstance(m['label'], list) else m['label']}"

@@ -12,7 +12,7 @@ bound in, optionally as another user: what ``podman run`` or ``docker run``
 would give, where they cannot run.
 
 Both need root, ``debootstrap``, ``unshare`` and ``chroot``; :func:`require`
-skips the calling test where any is missing.
+skips the calling test where not root, fails it where a tool the set-up installs is missing.
 """
 from __future__ import annotations
 
@@ -25,6 +25,8 @@ from pathlib import Path
 
 import pytest
 
+import required
+
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / ".cache" / "rootfs"
 MIRROR = "http://deb.debian.org/debian"
@@ -32,12 +34,16 @@ COMPLETE = ".stepnf-rootfs-complete"
 
 
 def require(*tools: str) -> None:
-    """Skip the calling test unless running as root with ``tools`` (and unshare, chroot) on PATH."""
+    """Skip the calling test unless running as root; fail it where ``tools`` (and unshare, chroot) are missing.
+
+    A tool of ``tests/required_tools.txt`` that the set-up installs on this release fails the test when
+    missing (:func:`required.need`); other missing tools skip it.
+    """
     if os.geteuid() != 0:
         pytest.skip("needs root (debootstrap, mounts and chroot)")
     missing = [t for t in ("unshare", "chroot", *tools) if shutil.which(t) is None]
-    if missing:
-        pytest.skip(f"needs {', '.join(missing)} (bash scripts/setup.sh tests installs them)")
+    if missing:  # a failure for a tool the set-up installs on this Debian release (debootstrap, podman)
+        required.need(*missing)
 
 
 def minbase_rootfs(suite: str, *, timeout: float = 1200.0) -> Path:

@@ -93,3 +93,18 @@ def use_solver(monkeypatch, get_solver) -> None:
 
     monkeypatch.setattr(registry, "get_solver", get_solver)
     monkeypatch.setattr(pipeline, "get_solver", get_solver)
+
+
+def stiff_two_dof(ratio: float, seed: int = 3):
+    """Physical (M, K, G, H) of 2 dofs whose modes' stiffnesses differ by ``1.1025 ratio``: frequencies
+    1 (the slow master) and ``1.05 sqrt(ratio)`` (the factor 1.05 keeps ``ratio = 1e2`` off the exact
+    1:10 internal resonance), with the quadratic and cubic modal terms of tests/test_dpim.two_dof
+    (self-coupling of the master 0.1 and 0.5, couplings 0.05, 0.2)."""
+    g = np.zeros((2, 2, 2))
+    h = np.zeros((2, 2, 2, 2))
+    for T, entries in ((g, {(0, 0, 0): 0.1, (1, 0, 0): 0.05, (1, 1, 0): 0.05}),
+                       (h, {(0, 0, 0, 0): 0.5, (1, 1, 0, 0): 0.2, (1, 1, 1, 1): 0.3})):
+        for idx, val in entries.items():
+            for perm in set(itertools.permutations(idx)):
+                T[perm] = val
+    return modal_to_physical(np.array([1.0, 1.05 * np.sqrt(ratio)]), g, h, seed=seed)

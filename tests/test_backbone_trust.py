@@ -125,9 +125,9 @@ def test_blank_output_folder_exit_2(tmp_path, capsys, out):
     assert "--output must name a folder" in capsys.readouterr().err
 
 
-def test_show_of_an_edited_backbone_block_exit_3(tmp_path, capsys):
+def test_show_of_an_edited_backbone_block_exit_2(tmp_path, capsys):
     """A results file whose backbone block was edited by hand (a list cut short) is a message naming the
-    file (exit 3, as any unreadable results file), not an internal error."""
+    file (exit 2: the file given to `show` is bad input, issue 29 finding 11), not an internal error."""
     path = polynomial_scene(tmp_path)
     assert main(["run", str(path), "-q", "--no-plot"]) == 0
     h5 = tmp_path / "out" / "s.h5"
@@ -137,7 +137,7 @@ def test_show_of_an_edited_backbone_block_exit_3(tmp_path, capsys):
         doc["modes"][0]["backbone"]["omega_ratio"] = []
         f.attrs[key] = json.dumps(doc)
     capsys.readouterr()
-    assert main(["show", str(h5)]) == 3
+    assert main(["show", str(h5)]) == 2
     err = capsys.readouterr().err
     assert "s.h5" in err and "malformed" in err and "internal error" not in err
 

@@ -29,6 +29,7 @@ from scipy.optimize import brentq
 
 from stepnf.pipeline import run_scene
 from stepnf.scene import load_scene
+from required import need
 
 REPO = Path(__file__).resolve().parents[1]
 BEAM = REPO / "examples" / "beam_ccx"
@@ -108,8 +109,7 @@ def dnf(result):
 def routes(tmp_path_factory):
     """DNF of the first bending mode by the three routes: {route: (omega, MethodResult)}."""
     pytest.importorskip("stepnf_fenicsx")
-    if shutil.which("ccx") is None:
-        pytest.skip("CalculiX (ccx) not installed")
+    need("ccx")
     folder = tmp_path_factory.mktemp("beam")
     for f in BEAM.iterdir():
         shutil.copy(f, folder / f.name)

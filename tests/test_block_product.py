@@ -3,13 +3,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from stepnf.block_product import BlockProduct, block_product
+from stepnf.block_product import PETSC_MIN_ROWS, BlockProduct, block_product
 
 petsc4py = pytest.importorskip("petsc4py")
 
 
-def random_csr(n: int, seed: int = 0) -> sp.csr_matrix:
-    A = sp.random(n, n, density=0.05, random_state=seed, format="csr")
+def random_csr(n: int, seed: int = 0, density: float = 0.05) -> sp.csr_matrix:
+    A = sp.random(n, n, density=density, random_state=seed, format="csr")
     A = (A + A.T + sp.eye(n)).tocsr()
     A.sum_duplicates()
     A.sort_indices()
@@ -24,15 +24,25 @@ def rounding_bound(A: sp.csr_matrix, X: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("k", [1, 2, 3, 5, 8, 13])  # 5, 8, 13: several chunks of PETSc products
 def test_block_product_equals_scipy(k):
-    A = random_csr(300)
-    X = np.random.default_rng(k).standard_normal((300, k))
+    n = PETSC_MIN_ROWS  # the smallest matrix PETSc multiplies
+    A = random_csr(n, density=0.005)
+    X = np.random.default_rng(k).standard_normal((n, k))
     P = BlockProduct(A)
     Y = P @ X
-    assert Y.shape == (300, k) and Y.flags.c_contiguous
+    assert Y.shape == (n, k) and Y.flags.c_contiguous
     assert np.all(np.abs(Y - A @ X) <= rounding_bound(A, X))
     assert (P._petsc not in (None, False)) == (k >= 2)  # PETSc is made (and used) for blocks only
     y = P @ X[:, 0]
-    assert y.shape == (300,) and np.array_equal(y, A @ X[:, 0])  # one vector: scipy's own product
+    assert y.shape == (n,) and np.array_equal(y, A @ X[:, 0])  # one vector: scipy's own product
+
+
+def test_a_small_matrix_is_multiplied_by_scipy():
+    """Below PETSC_MIN_ROWS rows scipy multiplies: no PETSc matrix (petsc4py, so MPI, is not started for it:
+    tests/test_mpi_tmpdir.py checks a whole run), and the very numbers of scipy."""
+    A = random_csr(PETSC_MIN_ROWS - 1, density=0.005)
+    X = np.random.default_rng(1).standard_normal((A.shape[0], 8))
+    P = BlockProduct(A)
+    assert np.array_equal(P @ X, A @ X) and P._petsc is False
 
 
 def test_block_product_falls_back_to_scipy():

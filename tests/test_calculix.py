@@ -8,19 +8,19 @@ M come from ``.sti``/``.mas`` with 14 digits.
 from __future__ import annotations
 
 import math
-import shutil
 
 import numpy as np
 import pytest
 
 from meshes import block_mesh
+from required import requires
 
 from stepnf.errors import SceneError, SolverRunError
 from stepnf.testing import Tolerances, parametrize_with_checks
 
 pytestmark = [
     pytest.mark.calculix,
-    pytest.mark.skipif(shutil.which("ccx") is None, reason="ccx (Debian calculix-ccx) not installed"),
+    requires("ccx"),
 ]
 
 ccx_mod = pytest.importorskip("stepnf_calculix")

@@ -15,6 +15,7 @@ import pytest
 
 from hostile import assert_reported, run_cli
 from meshes import block_mesh
+from required import requires
 
 from stepnf.errors import SceneError
 from stepnf.testing import Tolerances, parametrize_with_checks
@@ -26,7 +27,7 @@ from stepnf_calculix.deck import mesh_text  # noqa: E402
 from stepnf_calculix.userdeck import STEPNF_NSET, read_deck  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "beam_ccx"
-needs_ccx = pytest.mark.skipif(shutil.which("ccx") is None, reason="ccx (Debian calculix-ccx) not installed")
+needs_ccx = requires("ccx")
 E, NU, RHO = 2.1e11, 0.3, 7800.0
 
 

@@ -9,14 +9,15 @@ element (serendipity 20-node vs triquadratic 27-node) and by CalculiX's
 """
 from __future__ import annotations
 
-import shutil
 import time
 
 import pytest
 
+from required import requires
+
 pytestmark = [
     pytest.mark.slow, pytest.mark.calculix, pytest.mark.fenicsx,
-    pytest.mark.skipif(shutil.which("ccx") is None, reason="ccx (Debian calculix-ccx) not installed"),
+    requires("ccx"),
 ]
 pytest.importorskip("stepnf_calculix")
 pytest.importorskip("stepnf_fenicsx")

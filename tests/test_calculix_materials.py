@@ -7,7 +7,6 @@ is marked slow). Precision model (tests/test_calculix.py): K and M carry 14 digi
 """
 from __future__ import annotations
 
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import pytest
 
 from hostile import assert_reported, run_cli
 from meshes import block_mesh
+from required import requires
 
 from stepnf.errors import SceneError
 from stepnf.materials import material, rotated, rotation
@@ -26,7 +26,7 @@ CalculixAdapter = ccx_mod.CalculixAdapter
 from stepnf_calculix.deck import mesh_text  # noqa: E402
 from stepnf_calculix.sections import Section, materials_text  # noqa: E402
 
-needs_ccx = pytest.mark.skipif(shutil.which("ccx") is None, reason="ccx (Debian calculix-ccx) not installed")
+needs_ccx = requires("ccx")
 PLATE = Path(__file__).resolve().parents[1] / "examples" / "orthotropic_plate"
 E, NU, RHO = 2.1e11, 0.3, 7800.0
 STEEL = {"E": E, "nu": NU, "rho": RHO}

@@ -26,7 +26,10 @@ CAP = {"shape": "spherical_cap", "a": 0.15, "R": 1.5, "h": 0.003, "n_core": 2, "
 
 def make(tmp_path, **kw):
     cfg = {"geometry": CAP, "material": MATERIAL, "workdir": "runs", **kw}
-    return CodeAsterAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "scene.toml")
+    from stepnf.programs import allow_programs
+
+    with allow_programs():  # command and templates name programs: the user allows them here
+        return CodeAsterAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "scene.toml")
 
 
 # --------------------------------------------------------------- templates

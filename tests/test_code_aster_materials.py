@@ -43,7 +43,10 @@ def matrot(alpha: float, beta: float, gamma: float) -> np.ndarray:
 
 
 def cap(tmp_path, **kw):
-    return CodeAsterAdapter.from_config({"geometry": CAP, "material": ISO, **kw}, base_dir=tmp_path)
+    from stepnf.programs import allow_programs
+
+    with allow_programs():  # command and templates name programs: the user allows them here
+        return CodeAsterAdapter.from_config({"geometry": CAP, "material": ISO, **kw}, base_dir=tmp_path)
 
 
 def grouped_med(tmp_path, groups: dict[str, slice], name="part.med") -> Path:
@@ -72,7 +75,10 @@ def grouped_med(tmp_path, groups: dict[str, slice], name="part.med") -> Path:
 
 def from_mesh(tmp_path, path, **kw):
     cfg = {"mesh": path.name, **kw}
-    return CodeAsterAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "scene.toml")
+    from stepnf.programs import allow_programs
+
+    with allow_programs():  # command and templates name programs: the user allows them here
+        return CodeAsterAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "scene.toml")
 
 
 def render(ad, tmp_path, job):

@@ -64,12 +64,18 @@ RTOL_GAMMA = {"plate": 2e-8, "shell_kappa25": 5e-8, "shallow_shell_kappa25": 5e-
 RTOL_GAMMA_TWINS = {("shell_kappa25", (2, 0)): 5e-7, ("shallow_shell_kappa25", (2, 0)): 3e-8}
 
 def copy_checkout(dest: Path) -> None:
-    """This checkout's tracked and new, not ignored, files (the work tree, as ``git ls-files`` lists it)."""
+    """This checkout's tracked and new, not ignored, files (the work tree, as ``git ls-files`` lists it).
+
+    Symbolic links are copied as links (the adapters' ``templates`` folders are links into ``templates/``).
+    """
     names = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
                            capture_output=True, check=True).stdout.decode().split("\0")
     for name in filter(None, names):
         src = ROOT / name
-        if src.is_file():
+        if src.is_symlink():
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            os.symlink(os.readlink(src), dest / name)
+        elif src.is_file():
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, dest / name)
 

@@ -218,3 +218,67 @@ def test_read_only_install_compiles_into_temp_with_one_note(env, capfd):
     notes = [str(w.message) for w in caught] + [line for line in err.splitlines() if line]
     assert len(notes) == 1 and "form cache:" in notes[0] and "not writable" in notes[0], notes
     assert "py.warnings" not in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------ permissions (issue 29, finding 7)
+def mode(p: Path) -> int:
+    return p.stat().st_mode & 0o777
+
+
+@pytest.fixture
+def umask000():
+    old = os.umask(0)
+    yield
+    os.umask(old)
+
+
+def test_cache_folders_are_created_0700_whatever_the_umask(env, umask000, monkeypatch):
+    """Under umask 000 the cache (compiled .so files the next run loads) was created world-writable."""
+    cache = _compat.cache_dir()
+    assert cache == env / "xdg" / "stepnf" / "fenicsx"
+    assert mode(cache) == 0o700 and mode(cache.parent) == 0o700
+    monkeypatch.setenv("STEPNF_CACHE_DIR", str(env / "mine"))
+    jitcache._resolve_cache.cache_clear()
+    assert mode(_compat.cache_dir()) == 0o700
+
+
+def test_temporary_fallback_is_created_0700_whatever_the_umask(env, umask000):
+    unwritable(env / "xdg")
+    with pytest.warns(OutputWarning):
+        cache = _compat.cache_dir()
+    assert cache == env / "tmp" / f"stepnf-{os.getuid()}" / "fenicsx"
+    assert mode(cache) == 0o700 and mode(cache.parent) == 0o700
+
+
+@pytest.mark.parametrize("bits", [0o777, 0o770, 0o702], ids=["0777", "0770", "0702"])
+def test_a_cache_writable_by_others_is_not_used(env, bits):
+    """A group- or world-writable cache folder (or its parent) may hold someone else's .so: refused."""
+    planted = env / "xdg" / "stepnf" / "fenicsx"
+    planted.mkdir(parents=True)
+    planted.chmod(bits)
+    with pytest.warns(OutputWarning, match=r"writable by others .*not used"):
+        cache = _compat.cache_dir()
+    assert cache != planted and not str(cache).startswith(str(planted)) and mode(cache) == 0o700
+    planted.chmod(0o700)
+    planted.parent.chmod(bits)  # the parent: another user could swap the folder for theirs
+    jitcache._resolve_cache.cache_clear()
+    with pytest.warns(OutputWarning, match="writable by others"):
+        assert _compat.cache_dir() != planted
+
+
+def test_a_temporary_fallback_writable_by_others_is_not_used(env):
+    unwritable(env / "xdg")
+    shared = env / "tmp" / f"stepnf-{os.getuid()}"
+    (shared / "fenicsx").mkdir(parents=True)
+    shared.chmod(0o777)
+    with pytest.warns(OutputWarning):
+        cache = _compat.cache_dir()
+    assert shared not in cache.parents and mode(cache) == 0o700 and mode(cache.parent) == 0o700
+
+
+def test_stepnf_cache_dir_writable_by_others_is_an_error(env, monkeypatch):
+    (env / "mine" / "fenicsx").mkdir(parents=True)
+    (env / "mine" / "fenicsx").chmod(0o777)
+    monkeypatch.setenv("STEPNF_CACHE_DIR", str(env / "mine"))
+    with pytest.raises(OutputError, match=r"STEPNF_CACHE_DIR=.*writable by others \(mode 0777\)"):
+        _compat.cache_dir()

@@ -338,7 +338,7 @@ def test_failed_replace_leaves_previous_file_and_no_tmp(tmp_path, monkeypatch):
     target = tmp_path / "f.bin"
     atomic.write_bytes(target, b"old")
 
-    def boom(src, dst):
+    def boom(src, dst, **dir_fds):  # the writer renames relative to the folder's descriptor
         raise OSError(errno.EIO, "Input/output error")
 
     monkeypatch.setattr(atomic.os, "replace", boom)
@@ -347,13 +347,16 @@ def test_failed_replace_leaves_previous_file_and_no_tmp(tmp_path, monkeypatch):
     assert target.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["f.bin"]
 
 
-def test_write_through_a_symlink_replaces_its_target(tmp_path):
+def test_write_through_a_symlink_is_refused(tmp_path):
+    """Issue 29, finding 5: a link at the target was followed (its target replaced); now refused, both
+    untouched (tests/test_hostile_links.py has the runs)."""
     real = tmp_path / "real"
     real.mkdir()
     (real / "r.h5").write_bytes(b"old")
     (tmp_path / "link.h5").symlink_to(real / "r.h5")
-    atomic.write_bytes(tmp_path / "link.h5", b"new")
-    assert (tmp_path / "link.h5").is_symlink() and (real / "r.h5").read_bytes() == b"new"
+    with pytest.raises(OutputError, match="is a symbolic link"):
+        atomic.write_bytes(tmp_path / "link.h5", b"new")
+    assert (tmp_path / "link.h5").is_symlink() and (real / "r.h5").read_bytes() == b"old"
 
 
 # ------------------------------------------------------------------ format and format_version

@@ -20,6 +20,7 @@ import pytest
 import scipy.sparse as sp
 
 from hostile import assert_reported, run_cli
+from required import requires
 from stepnf.adapter import SYMMETRY_TOLERANCE, checked_matrix
 from stepnf.errors import AdapterError
 from stepnf.external import ExternalSolverAdapter, require_files
@@ -320,12 +321,12 @@ CCX_CASES = [
 
 
 @pytest.mark.calculix
-@pytest.mark.skipif(CCX is None, reason="ccx (Debian calculix-ccx) not installed")
+@requires("ccx")
 @pytest.mark.parametrize("action, target", CCX_CASES, ids=[f"{t}-{a}" for a, t in CCX_CASES])
 def test_calculix_corrupt_results(tmp_path, capsys, action, target):
     pytest.importorskip("stepnf_calculix")
     exe = _fake_ccx(tmp_path, action, target)
-    o = run_cli(["run", _ccx_scene(tmp_path, exe), "-q"], capsys)
+    o = run_cli(["run", _ccx_scene(tmp_path, exe), "-q", "--allow-programs"], capsys)  # the scene names fake_ccx
     assert_reported(o, codes=(3,), mentions=["work folder", "FAKE-CCX: corrupting"])
     stem = target.split(".")[0]
     assert target in o.err or f"{stem}." in o.err, o.err

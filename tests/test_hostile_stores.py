@@ -1,7 +1,8 @@
 """Stored files edited or damaged by hand, and command-line values of `sweep`, `curves` and `fig4`.
 
-Each is a message naming the file or the option, exit 2 (input) or 3 (a stored file that cannot be
-used), never an internal error (exit 1); numbers stepnf never stores (NaN) are refused, not printed.
+Each is a message naming the file or the option, exit 2 (input: an option, a results file given to
+`show`) or 3 (a sweep store of stepnf's own output that cannot be used), never an internal error
+(exit 1); numbers stepnf never stores (NaN) are refused, not printed.
 """
 from __future__ import annotations
 
@@ -66,9 +67,11 @@ def replace_arrays(f):
     ("nan_omega", set_in_document(lambda d: d["modes"][0].update(omega=float("nan")))),
     ("bool_T", set_in_document(lambda d: d["modes"][0]["methods"]["dnf"].update(T=True))),
 ])
-def test_show_of_a_damaged_file_exit_3(stored_run, tmp_path, capsys, name, edit):
+def test_show_of_a_damaged_file_exit_2(stored_run, tmp_path, capsys, name, edit):
+    """The results file given to `stepnf show` is the user's input: damaged, it is bad input (exit 2, as the
+    README's exit codes say of a scene, mesh or model file), no longer exit 3 (issue 29, finding 11)."""
     path = edited(stored_run, tmp_path / f"{name}.h5", edit)
-    assert main(["show", str(path)]) == 3
+    assert main(["show", str(path)]) == 2
     err = capsys.readouterr().err
     assert f"{name}.h5" in err and "internal error" not in err and "Traceback" not in err
 
@@ -91,6 +94,20 @@ def test_damaged_sweep_store_is_a_store_error(tmp_path, edit):
     bad = edited(good, tmp_path / "bad.h5", edit)
     with pytest.raises(StoreError, match="bad.h5: the sweep store is unreadable"):
         read_store(bad)
+
+
+def test_fig4_of_a_damaged_store_exit_2(tmp_path, capsys):
+    """A store named on fig4's command line is input, as the results file of `show`: damaged, exit 2."""
+    bad = edited(sweep_store(tmp_path / "good.h5"), tmp_path / "bad.h5", set_json_of_case("[1, 2]"))
+    assert main(["fig4", str(bad), "--out", str(tmp_path / "fig"), "--n-kappa", "20"]) == 2
+    err = capsys.readouterr().err
+    assert "bad.h5: the sweep store is unreadable" in err and "internal error" not in err
+
+
+def set_json_of_case(value):
+    def edit(f):
+        f["cases/retained_modes=6"].attrs["result"] = value
+    return edit
 
 
 @pytest.mark.parametrize("address", ["garbage", "localhost", "tcp://", "foo://x:1", "inproc://x", " "])

@@ -23,6 +23,7 @@ from stepnf.linearised import Spectrum
 from stepnf.linalg import PseudoInverse
 from stepnf.modal import modal_analysis
 from stepnf.scene import parse_scene
+from required import requires
 from systems import random_system
 
 
@@ -103,7 +104,7 @@ def _cap(masters=("(2,0)", "(3,0)", "(0,1)", "(0,2)")):
 
 
 @pytest.mark.fenicsx
-@pytest.mark.skipif(__import__("importlib").util.find_spec("dolfinx") is None, reason="needs dolfinx")
+@requires("dolfinx")
 def test_linearised_T_error_on_the_cap_matches_a_second_solve(monkeypatch):
     """kappa = 25 cap, pipeline's own computed modes (the rest of theta by its Rayleigh quotient).
 
@@ -180,7 +181,7 @@ def test_inverse_mass_norm2_refuses_a_mass_matrix_that_is_not_positive():
 
 
 @pytest.mark.fenicsx
-@pytest.mark.skipif(__import__("importlib").util.find_spec("dolfinx") is None, reason="needs dolfinx")
+@requires("dolfinx")
 def test_captured_fraction_on_the_hex27_cap_within_the_stated_accuracy():
     """hex27 consistent mass of the kappa = 25 cap: the share of G(phi_p, phi_p) on the first 10 bending
     modes (~1e-9: the rest is in-plane) and on all computed modes, against a direct solve.

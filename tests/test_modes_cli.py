@@ -127,17 +127,18 @@ def test_show_prints_the_runs_table_again(tmp_path, capsys):
 
 
 def test_show_refuses_a_file_that_is_not_a_run(tmp_path, capsys):
+    """A file given to `show` that is no results file is bad input: exit 2 (issue 29, finding 11)."""
     other = tmp_path / "other.h5"
     with h5py.File(other, "w") as f:
         f["x"] = np.arange(3)
-    assert main(["show", str(other)]) == 3
+    assert main(["show", str(other)]) == 2
     err = capsys.readouterr().err
     assert "not a stepnf run file" in err and "other.h5" in err
     text = tmp_path / "notes.h5"
     text.write_text("hello")
-    assert main(["show", str(text)]) == 3
+    assert main(["show", str(text)]) == 2
     assert "cannot read the HDF5 file" in capsys.readouterr().err
-    assert main(["show", str(tmp_path / "missing.h5")]) == 3
+    assert main(["show", str(tmp_path / "missing.h5")]) == 2
     assert "no such file" in capsys.readouterr().err
 
 

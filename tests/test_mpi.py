@@ -31,6 +31,7 @@ from stepnf.testing import Tolerances, parametrize_with_checks  # noqa: E402
 from stepnf_fenicsx import FenicsxAdapter  # noqa: E402
 from stepnf_fenicsx.parallel import DistributedFenicsxAdapter  # noqa: E402
 from meshes import cap_model_toml  # noqa: E402
+from required import need  # noqa: E402
 
 pytestmark = pytest.mark.fenicsx
 
@@ -68,7 +69,7 @@ def _mpirun_command(n: int) -> tuple[list[str], dict[str, str]]:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> tuple[dict, dict, Path]:
     if MPIRUN is None:
-        pytest.skip("no mpirun on PATH")
+        need("mpirun")
     folder = tmp_path_factory.mktemp("mpi")
     scene_file = folder / "cap.toml"
     scene_file.write_text(SCENE)

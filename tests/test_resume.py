@@ -53,7 +53,8 @@ def test_killed_run_resumes(tmp_path, monkeypatch):
     Crashing.budget, Crashing.seen = 10**9, 0
     res = pipeline.run_scene(scene_for(work))
     assert res.counts["force_evaluations_reused"] == 72
-    assert res.counts["force_evaluations"] == total - 72
+    # + 1: the probe, the first reused field evaluated again to check the model did not change
+    assert res.counts["force_evaluations"] == total - 72 + 1
     for a, b in zip(res.modes, ref.modes):
         for m in ("nf", "dnf"):
             assert a.methods[m].T == pytest.approx(b.methods[m].T, rel=1e-12)
@@ -92,3 +93,119 @@ def test_killed_backbone_resumes_from_its_stored_orders(tmp_path, monkeypatch):
     assert res.counts["force_evaluations_reused"] == 8 + sum(plan[:4])
     for a, b in zip(res.modes, ref.modes):
         assert a.backbone["omega"] == b.backbone["omega"] and a.backbone["valid_up_to"] == b.backbone["valid_up_to"]
+
+
+# ---------------------------------------------------------------- a checkpoint of another model (issue 29)
+def write_scene(folder, G_scale=1.0):
+    """The scene of ``scene_for`` as a TOML file (for the CLI), its system's G and H scaled by ``G_scale``."""
+    M, K, G, H = random_system(9, seed=21)
+    save_system(folder / "s.npz", M, K, G_scale * G, G_scale * H)
+    (folder / "s.toml").write_text('[model]\nsolver = "crashing"\nfile = "s.npz"\n[analysis]\nmaster_modes = [0, 1]\n'
+                                   'methods = ["nf", "dnf"]\nretained_modes = 6\ntensors = "full"\n'
+                                   '[output]\ndir = "out"\n')
+    return folder / "s.toml"
+
+
+def run_json(capsys, toml, *extra):
+    """``stepnf run TOML --json``: (exit code, document or None, stderr with the warnings as the CLI prints
+    them: pytest records warnings instead of letting Python print them)."""
+    import json
+    import warnings
+
+    from stepnf.cli import main
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main(["run", str(toml), "--json", "--quiet", *extra])
+    out, err = capsys.readouterr()
+    err += "".join(f"stepnf: warning: {w.message}\n" for w in caught)
+    return code, (json.loads(out) if code == 0 else None), err
+
+
+def test_a_checkpoint_of_other_tensors_is_not_reused(tmp_path, monkeypatch, capsys):
+    """Issue 29, finding 2: killed, the model file's nonlinear tensors changed, rerun: the stored forces (of
+    the old tensors) are not reused, the rerun says so and gives what a fresh run of the new model gives."""
+    use_solver(monkeypatch, lambda name: Crashing)
+    (tmp_path / "ref").mkdir()
+    (tmp_path / "old").mkdir()
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, fresh, _ = run_json(capsys, write_scene(tmp_path / "ref", G_scale=1.6))
+    assert code == 0
+    code, old, _ = run_json(capsys, write_scene(tmp_path / "old"))
+    work = tmp_path / "work"
+    work.mkdir()
+    toml = write_scene(work)
+    Crashing.budget, Crashing.seen = 80, 0
+    assert run_json(capsys, toml)[0] == 3  # killed: two chunks (72 fields) of the old tensors are stored
+    assert len(list((work / "out" / ".s.partial").glob("*.npz"))) == 2
+    write_scene(work, G_scale=1.6)  # same M and K (same modes, same fields asked for), other G and H
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, doc, err = run_json(capsys, toml)
+    assert code == 0, err
+    assert "was made for another model" in err and "s.npz" in err and "not reused" in err
+    assert doc["counts"]["force_evaluations_reused"] == 0
+    assert doc["counts"]["force_evaluations"] == fresh["counts"]["force_evaluations"]
+    for a, b, c in zip(doc["modes"], fresh["modes"], old["modes"]):
+        for m in ("nf", "dnf"):
+            # the same arithmetic as the fresh run: equal to round-off; the old model's T is far away
+            assert a["methods"][m]["T"] == pytest.approx(b["methods"][m]["T"], rel=1e-12)
+            assert abs(c["methods"][m]["T"] - b["methods"][m]["T"]) > 1e-3 * abs(b["methods"][m]["T"])
+
+
+def test_an_unchanged_rerun_still_resumes_and_says_nothing(tmp_path, monkeypatch, capsys):
+    """The model key does not get in the way of a real resume: the same scene and file, the stored forces reused."""
+    use_solver(monkeypatch, lambda name: Crashing)
+    toml = write_scene(tmp_path)
+    Crashing.budget, Crashing.seen = 80, 0
+    assert run_json(capsys, toml)[0] == 3
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, doc, err = run_json(capsys, toml)
+    assert code == 0, err
+    assert doc["counts"]["force_evaluations_reused"] == 72 and "another model" not in err
+
+
+def test_a_checkpoint_without_a_model_key_is_not_reused(tmp_path, monkeypatch, capsys):
+    """Chunks written by an earlier stepnf (no model key beside them) cannot be trusted: recomputed, and said."""
+    use_solver(monkeypatch, lambda name: Crashing)
+    toml = write_scene(tmp_path)
+    Crashing.budget, Crashing.seen = 80, 0
+    assert run_json(capsys, toml)[0] == 3
+    partial = tmp_path / "out" / ".s.partial"
+    for f in partial.iterdir():
+        if not f.name.endswith(".npz"):
+            f.unlink()  # what an earlier stepnf left: the chunks alone
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, doc, err = run_json(capsys, toml)
+    assert code == 0, err
+    assert doc["counts"]["force_evaluations_reused"] == 0
+    assert "without a model key" in err and "not reused" in err
+
+
+class Upgraded(Crashing):
+    """The same scene and files, other forces: what the scene cannot show (an adapter upgrade, an included file)."""
+
+    factor = 1.0
+
+    def _internal_forces(self, U):
+        F = super()._internal_forces(U)
+        return F + (type(self).factor - 1.0) * (F - U @ self._K.T)  # the nonlinear part scaled
+
+
+def test_a_checkpoint_whose_forces_the_solver_no_longer_gives_is_not_reused(tmp_path, monkeypatch, capsys):
+    """The probe: on the first reuse one stored field is evaluated again; forces that differ drop the checkpoint."""
+    use_solver(monkeypatch, lambda name: Upgraded)
+    (tmp_path / "ref").mkdir()
+    Upgraded.budget, Upgraded.seen, Upgraded.factor = 10**9, 0, 1.3
+    code, fresh, _ = run_json(capsys, write_scene(tmp_path / "ref"))
+    assert code == 0
+    toml = write_scene(tmp_path)
+    Upgraded.budget, Upgraded.seen, Upgraded.factor = 80, 0, 1.0
+    assert run_json(capsys, toml)[0] == 3
+    Upgraded.budget, Upgraded.seen, Upgraded.factor = 10**9, 0, 1.3
+    code, doc, err = run_json(capsys, toml)
+    assert code == 0, err
+    assert "another model" in err and "not reused" in err
+    assert doc["counts"]["force_evaluations_reused"] == 0
+    for a, b in zip(doc["modes"], fresh["modes"]):
+        for m in ("nf", "dnf"):
+            assert a["methods"][m]["T"] == pytest.approx(b["methods"][m]["T"], rel=1e-12)

@@ -12,17 +12,19 @@ from stepnf.errors import SceneError, StoreError
 from stepnf.sweep import load_sweep, read_store, run_case
 
 PLUGIN = textwrap.dedent('''
+    import os
     import time
     import numpy as np
     from stepnf.modal_model import ModalModel
     from stepnf.shell import ShellScales
 
     class Slow(ModalModel):
-        """Two-mode model whose coupling grows with kappa; sleeps to make the sweep killable."""
-        def __init__(self, kappa, delay=0.0):
+        """Two-mode model whose coupling grows with kappa; sleeps (SLOW_DELAY seconds: no scene key, which
+        would make the resumed sweep's model another one) to make the sweep killable."""
+        def __init__(self, kappa):
             if kappa == 3:
                 raise ValueError("kappa = 3 is a case that fails on purpose")
-            time.sleep(delay)
+            time.sleep(float(os.environ.get("SLOW_DELAY", "0")))
             self.kappa = float(kappa)
         def omegas(self):
             return np.array([1.0, 2.5 + self.kappa])
@@ -49,9 +51,9 @@ def plugin_env(tmp_path):
     return site, env
 
 
-def write_sweep(tmp_path, delay):
+def write_sweep(tmp_path):
     (tmp_path / "base.toml").write_text(
-        f'[model]\nsolver = "slow"\nkappa = 1.0\ndelay = {delay}\n'
+        '[model]\nsolver = "slow"\nkappa = 1.0\n'
         '[analysis]\nmaster_modes = [0]\nmethods = ["nf", "md", "smd"]\n')
     sweep = tmp_path / "sweep.toml"
     sweep.write_text('[sweep]\nname = "demo"\nbase = "base.toml"\n'
@@ -62,10 +64,11 @@ def write_sweep(tmp_path, delay):
 
 def test_sweep_killed_and_resumed(tmp_path, plugin_env):
     site, env = plugin_env
-    sweep = write_sweep(tmp_path, delay=1.5)
+    sweep = write_sweep(tmp_path)
     store = tmp_path / "out" / "demo.h5"
     cmd = [sys.executable, "-m", "stepnf", "sweep", str(sweep)]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+    proc = subprocess.Popen(cmd, env={**env, "SLOW_DELAY": "1.5"}, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)
     deadline = time.time() + 120
     stored_before = {}
     while time.time() < deadline and proc.poll() is None:
@@ -81,7 +84,6 @@ def test_sweep_killed_and_resumed(tmp_path, plugin_env):
     assert 2 <= len(stored_before) < 6, "the sweep must be killed part-way"
     stored_before = read_store(store)  # what survived the kill is a readable store
     # resume (faster now): only the missing cases run
-    write_sweep(tmp_path, delay=0.0)
     r = subprocess.run(cmd + ["--quiet"], env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 4, r.stderr  # one case fails on purpose: the sweep is not complete
     assert f"{6 - len(stored_before)} cases run" in r.stdout

@@ -34,7 +34,9 @@ modules (:mod:`.templates`, :mod:`.process`, :mod:`.adapter`, :mod:`.keys`):
 :data:`~stepnf.external.keys.RUN_KEYS`, :func:`~stepnf.external.keys.check_solid_config`, :func:`~stepnf.external.keys.build_solid`
     The ``[model]`` keys of every template-driven adapter (run settings, a
     user's mesh or a generated cap, the material) and the one build of its
-    model from them.
+    model from them. A key that names a program (:attr:`SolidFromScene.program_keys
+    <stepnf.external.keys.SolidFromScene.program_keys>`: calculix ``executable``, code_aster
+    ``command`` and ``templates``) is refused unless the user allows it (:mod:`stepnf.programs`).
 """
 from __future__ import annotations
 

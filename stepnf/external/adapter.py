@@ -44,6 +44,10 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
     cache_size: int = 512
     #: Solver processes run at the same time, each on a share of a batch (threads wait on them).
     parallel_runs: int = 1
+    #: The scene keys that named the program run (set by ``from_config`` when the user allowed them,
+    #: :mod:`stepnf.programs`): the full command is then printed on stderr before it first runs.
+    program_named_by: str | None = None
+    _announced: bool = False
 
     def __init__(self, *, executable: str | None = None, timeout: float | None = 3600.0,
                  workdir: str | Path | None = None, keep: str = "on_error", parallel_runs: int = 1):
@@ -99,8 +103,15 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
         return f"{type(self).__name__} ({self.executable})"
 
     def run(self, argv: Sequence[str], workdir: Path, *, log_name: str = "solver.log") -> RunRecord:
-        """Run the solver command ``argv`` (``argv[0]`` replaced by the configured executable)."""
-        rec = run_command([self.executable, *argv[1:]], cwd=workdir, timeout=self.timeout,
+        """Run the solver command ``argv`` (``argv[0]`` replaced by the configured executable); a program the
+        scene named is printed on stderr before its first run."""
+        argv = [self.executable, *argv[1:]]
+        if self.program_named_by and not self._announced:
+            from ..programs import announce
+
+            self._announced = True
+            announce(argv, f"named by {self.program_named_by}")
+        rec = run_command(argv, cwd=workdir, timeout=self.timeout,
                           log_name=log_name, env=self.run_env(), what=self.solver_label)
         self.runs.append(rec)
         return rec

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from ..errors import SolverRunError, allowed
+from ..signals import received, track
 
 #: Work-folder keeping policies.
 KEEP_POLICIES = ("never", "on_error", "always")
@@ -55,7 +56,8 @@ class WorkFolder:
     ----------
     parent : folder in which to create it (created if needed); ``None``: the system temp folder
     prefix : name prefix of the folder
-    keep : ``"never"`` (always remove), ``"on_error"`` (keep when the block raised), ``"always"``
+    keep : ``"never"`` (always remove), ``"on_error"`` (keep when the block raised an error; an
+        interruption, Ctrl-C or a signal (:mod:`stepnf.signals`), is none: the folder is removed), ``"always"``
     """
 
     def __init__(self, parent: str | Path | None = None, *, prefix: str = "stepnf-", keep: str = "on_error"):
@@ -73,7 +75,8 @@ class WorkFolder:
         return self.path
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        failed = exc_type is not None
+        # an interruption (Ctrl-C, a signal: stepnf.signals) is no error, nor the solver's death it caused
+        failed = exc_type is not None and not issubclass(exc_type, KeyboardInterrupt) and received() is None
         if self.path is None:
             return
         if self.keep == "always" or (self.keep == "on_error" and failed):
@@ -106,7 +109,12 @@ def run_command(
     ``argv[0]`` is resolved with :func:`find_executable`. ``env`` entries are
     added to the current environment. On time-out the whole process group is
     killed. Raises :class:`SolverRunError` (with the work folder and the tail
-    of the log) on a missing executable, a non-zero exit or a time-out.
+    of the log) on a missing executable, a non-zero exit or a time-out. While
+    it runs the process group is registered with :mod:`stepnf.signals`: a
+    SIGINT, SIGTERM or SIGHUP to stepnf kills it (the main thread then
+    unwinds with :class:`~stepnf.signals.Interrupted`; a call in another
+    thread raises its :class:`SolverRunError`, and :class:`WorkFolder`
+    removes the folder all the same).
     """
     cwd = Path(cwd)
     log = cwd / log_name
@@ -125,7 +133,10 @@ def run_command(
         except OSError as exc:
             raise SolverRunError(f"{what} could not start: {' '.join(args)}: {exc}", workdir=cwd) from exc
         try:
-            rc = proc.wait(timeout=timeout)
+            with track(proc):
+                if received() is not None:  # the signal came between the start and the registration
+                    raise SolverRunError(f"{what} stopped: stepnf was interrupted", workdir=cwd)
+                rc = proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             _kill_group(proc)
             raise SolverRunError(

@@ -5,7 +5,9 @@ Geometry and conventions
 * Plan view: a disk of radius ``a`` (the *projected* outer radius of the cap),
   meshed by a structured O-grid ("butterfly"): a square core of ``n_core x
   n_core`` quadrilaterals (half-width ``core * a``) and four ring blocks of
-  ``n_core x n_ring`` quadrilaterals joining the core to the circle.
+  ``n_core x n_ring`` quadrilaterals joining the core to the circle, in equal
+  radial steps or (``grading`` > 1) steps shrinking geometrically towards the
+  circle, for a held rim (:mod:`.rim`).
 * Mid-surface: the sphere of radius ``R`` centred at ``(0, 0, -R)``, i.e. a
   dome whose apex is the origin and which curves **downwards**:
   ``z_mid(r) = sqrt(R^2 - r^2) - R <= 0`` (sag ``R - sqrt(R^2 - a^2)`` at the
@@ -43,6 +45,9 @@ DEFAULT_N_CORE = 14
 DEFAULT_N_RING = 5
 DEFAULT_N_THICK = 1
 DEFAULT_CORE = 0.5
+#: Largest ring grading (first over last radial element width), a bound on the ring elements' aspect
+#: ratios (a held rim's default is 2, :mod:`.rim`; on the clamped plate 5 or 8 already do worse than 2).
+MAX_GRADING = 100.0
 
 
 @dataclass
@@ -82,9 +87,10 @@ class VolumeMesh:
 
 
 # ---------------------------------------------------------------- plan view
-def _grid(f, n_p: int, n_q: int, p_range, q_range) -> np.ndarray:
-    """Nodes ``(2 n_p + 1, 2 n_q + 1, 2)`` of a block mapped by ``f(p, q)``."""
-    p = np.linspace(*p_range, 2 * n_p + 1)
+def _grid(f, n_p: int, n_q: int, p_range, q_range, p_nodes: np.ndarray | None = None) -> np.ndarray:
+    """Nodes ``(2 n_p + 1, 2 n_q + 1, 2)`` of a block mapped by ``f(p, q)`` (``p_nodes``: the ``2 n_p + 1``
+    values of ``p`` instead of equal steps over ``p_range``)."""
+    p = np.linspace(*p_range, 2 * n_p + 1) if p_nodes is None else p_nodes
     q = np.linspace(*q_range, 2 * n_q + 1)
     P, Q = np.meshgrid(p, q, indexing="ij")
     return np.stack(f(P, Q), axis=-1)
@@ -99,10 +105,29 @@ def _block_quads(n_p: int, n_q: int) -> np.ndarray:
     return np.stack([(i + di) * ny + (j + dj) for di, dj in offs], axis=1)
 
 
-def disk_quad9(n_core: int, n_ring: int, core: float = DEFAULT_CORE) -> tuple[np.ndarray, np.ndarray]:
-    """O-grid of the unit disk: points (P, 2) and counter-clockwise quad9 cells (Q, 9)."""
+def graded_nodes(n: int, grading: float) -> np.ndarray:
+    """The ``2 n + 1`` quad9 node positions in ``[0, 1]`` of ``n`` elements whose widths fall geometrically
+    from the first to the last by the factor ``grading`` (>= 1; 1: equal widths, :func:`numpy.linspace`
+    exactly); every mid-node halfway between its element's ends."""
+    if grading == 1.0 or n == 1:
+        return np.linspace(0.0, 1.0, 2 * n + 1)
+    widths = grading ** (-np.arange(n) / (n - 1))
+    ends = np.concatenate([[0.0], np.cumsum(widths) / widths.sum()])
+    ends[-1] = 1.0
+    out = np.empty(2 * n + 1)
+    out[0::2], out[1::2] = ends, 0.5 * (ends[:-1] + ends[1:])
+    return out
+
+
+def disk_quad9(n_core: int, n_ring: int, core: float = DEFAULT_CORE, grading: float = 1.0
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """O-grid of the unit disk: points (P, 2) and counter-clockwise quad9 cells (Q, 9); ``grading`` (>= 1)
+    shrinks the ring's radial steps geometrically towards the circle (:func:`graded_nodes`)."""
     if not 0.0 < core < 1.0 / math.sqrt(2.0):
         raise ValueError(f"core half-width must lie in (0, 1/sqrt(2)), got {core}")
+    if not 1.0 <= grading <= MAX_GRADING:
+        raise ValueError(f"grading must lie in [1, {MAX_GRADING:g}], got {grading}")
+    radial = graded_nodes(n_ring, float(grading))
     blocks = [(_grid(lambda u, v: (core * u, core * v), n_core, n_core, (-1, 1), (-1, 1)), n_core, n_core)]
     for k in range(4):
         c, s = math.cos(k * math.pi / 2), math.sin(k * math.pi / 2)
@@ -112,7 +137,7 @@ def disk_quad9(n_core: int, n_ring: int, core: float = DEFAULT_CORE) -> tuple[np
             y = (1 - t) * core * w + t * np.sin(w * math.pi / 4)
             return c * x - s * y, s * x + c * y
 
-        blocks.append((_grid(ring, n_ring, n_core, (0, 1), (-1, 1)), n_ring, n_core))
+        blocks.append((_grid(ring, n_ring, n_core, (0, 1), (-1, 1), radial), n_ring, n_core))
     pts, quads, offset = [], [], 0
     for grid, n_p, n_q in blocks:
         pts.append(grid.reshape(-1, 2))
@@ -179,6 +204,7 @@ def spherical_cap(
     n_ring: int = DEFAULT_N_RING,
     n_thick: int = DEFAULT_N_THICK,
     core: float = DEFAULT_CORE,
+    grading: float = 1.0,
 ) -> VolumeMesh:
     """Mesh of a free-edge spherical cap (see the module docstring for the conventions).
 
@@ -192,6 +218,8 @@ def spherical_cap(
     n_ring : elements across the ring, radially
     n_thick : elements through the thickness
     core : half-width of the core square as a fraction of ``a``
+    grading : the ring's first radial element width over its last (>= 1, at most :data:`MAX_GRADING`):
+        ``1`` equal steps; more refines towards the rim, for a held edge (:func:`graded_nodes`)
     """
     if element not in CELL_TYPES:
         raise ValueError(f"Unknown element {element!r}. Pick one of {list(CELL_TYPES)}")
@@ -204,7 +232,7 @@ def spherical_cap(
     for name, val in (("n_core", n_core), ("n_ring", n_ring), ("n_thick", n_thick)):
         if int(val) != val or val < 1:
             raise ValueError(f"{name} must be a positive integer, got {val!r}")
-    P2, Q = disk_quad9(int(n_core), int(n_ring), core)
+    P2, Q = disk_quad9(int(n_core), int(n_ring), core, float(grading))
     n_lev = 2 * int(n_thick) + 1
     zeta = np.linspace(-h / 2, h / 2, n_lev)
     xy = np.repeat(P2 * a, n_lev, axis=0)
@@ -222,6 +250,8 @@ def spherical_cap(
         points, midsurface, rim, cells = points[used], midsurface[used], rim[used], renum[cells]
     info = {"shape": "spherical_cap", "a": float(a), "R": float(R), "h": float(h), "element": element,
             "n_core": int(n_core), "n_ring": int(n_ring), "n_thick": int(n_thick), "core": float(core)}
+    if grading != 1.0:  # (a uniform ring's info is the one it always was)
+        info["grading"] = float(grading)
     return VolumeMesh(points=points, cells=cells, cell_type=CELL_TYPES[element], midsurface=midsurface, info=info,
                       node_sets={"edge": np.flatnonzero(rim)})
 

@@ -17,11 +17,12 @@ from typing import Any, Mapping
 from ..errors import SceneError
 from ..materials import MATERIAL as ANY_MATERIAL
 from ..schema import Key, Schema
-from .cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK
+from .cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK, MAX_GRADING
+from .rim import HELD_GRADING, HELD_N_RING
 
 MATERIAL_KEYS = ("E", "nu", "rho")
 SHAPES = ("spherical_cap",)
-RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick", "core")
+RESOLUTION_KEYS = ("n_core", "n_ring", "n_thick", "core", "grading")
 GEOMETRY_KEYS = ("shape", "a", "R", "h") + RESOLUTION_KEYS
 
 #: Lengths (any consistent unit): 1e-12 .. 1e12 spans nanometres in metres to kilometres in
@@ -57,12 +58,15 @@ CAP_DIMENSIONS = Schema(
 CAP_RESOLUTION = Schema(
     Key("n_core", "integer", "elements across the half-width of the core square", default=DEFAULT_N_CORE,
         lo=RESOLUTION_RANGES["n_core"][0], hi=RESOLUTION_RANGES["n_core"][1]),
-    Key("n_ring", "integer", "element rings from the core square to the edge", default=DEFAULT_N_RING,
+    Key("n_ring", "integer", f"element rings from the core square to the edge (fenicsx: {HELD_N_RING} when "
+        "[[model.boundary]] holds the whole rim)", default=DEFAULT_N_RING,
         lo=RESOLUTION_RANGES["n_ring"][0], hi=RESOLUTION_RANGES["n_ring"][1]),
     Key("n_thick", "integer", "elements through the thickness", default=DEFAULT_N_THICK,
         lo=RESOLUTION_RANGES["n_thick"][0], hi=RESOLUTION_RANGES["n_thick"][1]),
     Key("core", "number", "half-width of the core square, a fraction of a", default=DEFAULT_CORE,
         lo=CORE_RANGE[0], hi=CORE_RANGE[1], lo_open=True, hi_open=True),
+    Key("grading", "number", f"the rings' innermost radial width over the outermost, >= 1 (default 1; "
+        f"fenicsx: {HELD_GRADING:g} when [[model.boundary]] holds the whole rim)", lo=1.0, hi=MAX_GRADING),
 )
 #: ``[model.geometry]`` of a generated 3D cap: its shape, a, R, h and the resolution.
 CAP_GEOMETRY = Schema(Key("shape", "choice", "the generated shape", default="spherical_cap", choices=SHAPES),

@@ -17,8 +17,11 @@ Per master mode ``p`` (:func:`stepnf.dpim.dpim`, full order):
   master is done;
 * the computed spectrum for the internal-resonance flags (naming the mode), with one flag when the
   computed modes stop below ``N w_p`` (resonances with the higher harmonics are not checked there);
-* the master's degenerate twins passed: handled when symmetry keeps them uncoupled, else a
-  :class:`~stepnf.errors.NumericalError` naming the modes (exit 3).
+* the master's degenerate twins passed: handled when symmetry keeps them uncoupled; a twin the
+  master's forces drive (:class:`~stepnf.errors.NoSingleModeManifold`) gives that master a ``twin_driven``
+  flag on every method (T n/a in the table) and a block without amplitudes or validity range, and the
+  run goes on; a master that drives a twin or a rigid mode (:mod:`stepnf.manifold_checks`, found by the
+  evaluators) gets no validity range either (:func:`no_manifold`).
 
 Every rank of a collective (MPI) adapter makes the same calls: the sequence depends only on the
 scene and the computed modes.
@@ -33,11 +36,11 @@ from ..backbone import json_float
 from ..backbone_report import WMax, backbone_report, transverse_operator
 from ..dpim import DPIMResult, dpim
 from ..dpim_forcing import planned_evaluations
-from ..errors import SceneError
+from ..errors import NoSingleModeManifold, SceneError
+from ..flags import DIVERGES_REASON, STEP_UNUSABLE, backbone_invalidating, kind_of
 from ..gamma import gamma_scale
 from ..shifted import ShiftedFactorizer, Slot
 from ..step import ForceEvaluator, step_amplitude
-from ..trust import STEP_UNUSABLE
 from .backbone_slots import ParitySlots
 from .context import full_order_context
 from .state import RunState
@@ -182,11 +185,15 @@ def backbone_stage(state: RunState) -> None:
         odd = second_slot(state) if KEEP_FACTORISATIONS_UP_TO < state.n <= TWO_SLOTS_UP_TO else None
         try:
             for p in state.masters:
-                res = master_dpim(state, p, spec.order, forces, probe, odd)
+                try:
+                    res = master_dpim(state, p, spec.order, forces, probe, odd)
+                except NoSingleModeManifold as exc:  # the T table and the block say so; the run goes on
+                    refused_backbone(records.get(p), spec, probe, exc)
+                    continue
                 fallback = step_amplitude(state.phi[:, p], state.policy, length)
                 block = backbone_report(res, spec, wmax, probe=probe, fallback=fallback)
-                keep_backbone(state, records.get(p), p, res, force_accuracy(block, records.get(p),
-                                                                            state.policy.tolerance))
+                block = force_accuracy(block, records.get(p), state.policy.tolerance)
+                keep_backbone(state, records.get(p), p, res, no_manifold(block, records.get(p)))
         finally:
             if odd is not None:
                 odd.close()
@@ -198,7 +205,7 @@ def force_accuracy(block: dict, record, tolerance: float) -> dict:
 
     The master's methods measured how much T changes between the two STEP amplitudes (``T_error``):
     DNF's T is the backbone's order-3 term, else the steadiest method's is taken. Above the STEP
-    tolerance the block gets a ``step_accuracy`` flag; at :data:`stepnf.trust.STEP_UNUSABLE` (100%) or
+    tolerance the block gets a ``step_accuracy`` flag; at :data:`stepnf.flags.STEP_UNUSABLE` (100%) or
     more not even T's sign is established (forces at round-off, a model without nonlinearity): no
     amplitude is then called valid (``valid_up_to`` 0, ``valid_reason`` "forces inaccurate").
     """
@@ -220,6 +227,39 @@ def force_accuracy(block: dict, record, tolerance: float) -> dict:
         block.update(valid_up_to=0.0, valid_reason="forces inaccurate")
     block["flags"] = list(block["flags"]) + [flag]
     return block
+
+
+def no_manifold(block: dict, record) -> dict:
+    """``block`` without any validity range (``valid_up_to`` 0, the flag's ``valid_reason``) when a method of
+    the master carries a flag that the catalogue (:mod:`stepnf.flags`) says takes it: the master drives a
+    degenerate twin or a rigid mode (:mod:`stepnf.manifold_checks`), so the series describes no motion."""
+    flags = [f for r in (getattr(record, "methods", None) or {}).values() for f in r.flags]
+    flag = backbone_invalidating(flags)
+    if flag is None:
+        return block
+    block.update(valid_up_to=0.0, valid_reason=kind_of(flag).backbone_reason)
+    block["flags"] = list(block["flags"]) + [flag]
+    return block
+
+
+def refused_backbone(record, spec, probe: float, exc: NoSingleModeManifold) -> None:
+    """The DPIM of master ``record.index`` refused (:class:`~stepnf.errors.NoSingleModeManifold`: a degenerate
+    twin its forces drive, or a harmonic exactly at a mode): a backbone block with no amplitudes and no
+    validity range, its flag of ``exc.kind``; when the catalogue says that kind makes T n/a (a driven twin),
+    the flag on every method of the master too. The master has no entry in ``backbones`` (nothing to plot
+    or verify)."""
+    flag = {"kind": exc.kind, "mode": exc.mode, **exc.extra, "message": str(exc)}
+    if record is None:
+        return
+    kind = kind_of(flag)
+    if kind is not None and kind.t_na == "always":
+        for r in record.methods.values():
+            if not any(f.get("kind") == exc.kind for f in r.flags):
+                r.flags.append(dict(flag))
+    reason = kind.backbone_reason if kind is not None and kind.backbone_reason else DIVERGES_REASON
+    record.backbone = {"order": spec.order, "amplitude": [], "omega": [], "omega_ratio": [], "w_max_over_h": None,
+                       "valid_up_to": 0.0, "valid_reason": reason, "grid": False,
+                       "tolerance": spec.tolerance, "probe": json_float(probe), "flags": [flag], "counts": {}}
 
 
 def keep_backbone(state: RunState, record, p: int, res: DPIMResult, block: dict) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..diagnostics import overflow_is_numerical
 from ..gamma import gamma_scale
+from ..manifold_checks import rigid_flags, twin_flags
 from .context import full_order_context
 from .master import MasterData, master_data, mode_record
 from .methods import factorises, run_method
@@ -32,6 +33,8 @@ def evaluators_stage(state: RunState) -> None:
     without a targeted STEP) and, when a full-order method runs, ``context``. A floating-point
     overflow becomes a :class:`~stepnf.errors.NumericalError` naming the master and the method.
     The methods that factorise run last (module docstring); their place in each mode's results is kept.
+    Last, every method of a master that has no single-mode manifold (a driven degenerate twin or rigid
+    mode: :func:`manifold_flags`) gets its flag, which makes T n/a in the table (:mod:`stepnf.flags`).
     """
     state.scales = state.adapter.shell_scales()
     state.gscale, state.no_gamma = gamma_scale(state.scene, state.adapter, state.X, state.dirs)
@@ -68,6 +71,20 @@ def evaluators_stage(state: RunState) -> None:
         for d, name, ev in deferred:
             where.update(master=int(d.p), method=name)
             records[d.p].methods[name] = run_method(state, d, name, ev)
+        for d in datas:
+            where.update(master=int(d.p), method="(single-mode manifold)")
+            flags = manifold_flags(state, d)
+            for r in records[d.p].methods.values():
+                r.flags += [dict(f) for f in flags]
+
+
+def manifold_flags(state: RunState, d: MasterData) -> list[dict]:
+    """Flags of master ``d.p`` that no single-mode reduction exists for (:mod:`stepnf.manifold_checks`): a
+    degenerate twin its cubic force drives, a rigid mode its quadratic force drives. Every method of the
+    master gets them (T n/a in the table, no validity range for the backbone)."""
+    return (twin_flags(d.p, d.st, state.phi, d.twins, state.M, state.tol, state.labels)
+            + rigid_flags(d.p, d.st, state.basis.rigid, state.M, state.tol,
+                          declared=state.scene.rigid_modes is not None))
 
 
 def free_eigen_factorisation(state: RunState) -> None:

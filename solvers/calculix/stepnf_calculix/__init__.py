@@ -76,7 +76,10 @@ unconstrained model and the free rows and columns are kept, which is exact
 ``${rho}`` (one isotropic material), ``${materials}`` (the blocks stepnf
 writes: needed for regions or orthotropic constants), ``${title}``; the
 shipped ones are ``templates/job.inp`` and ``templates/materials_job.inp``),
-``executable = "ccx"``, ``timeout = 3600`` (s per run), ``workdir = "runs"``
+``executable = "ccx"`` (a name on PATH or a path, relative to the scene's
+folder; honoured only when the user allows programs named by scenes:
+``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.programs`, and
+then printed before it first runs), ``timeout = 3600`` (s per run), ``workdir = "runs"``
 (parent of the work folders, default the system temp folder), ``keep =
 "on_error"`` (or ``"never"``, ``"always"``), ``threads`` (``OMP_NUM_THREADS``),
 ``parallel_runs`` (ccx processes at a time, each on a share of a batch: ccx

@@ -18,6 +18,7 @@ from stepnf.external.keys import THREADS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
 from stepnf.materials import MATERIALS_KEY, Material
+from stepnf.programs import resolve_program
 from stepnf.schema import Key, Schema
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
@@ -90,6 +91,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     name = "calculix"
     program = "ccx"
     model_keys = MODEL_KEYS
+    program_keys = {"executable": "names the program stepnf would run for every CalculiX job"}
     #: a job template may carry its own material: [model.material] is optional with a mesh
     mesh_needs_material = False
     #: :meth:`tangent_stiffness` and :meth:`sharp_step` are available (14-digit tangents).
@@ -246,12 +248,31 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     @classmethod
     def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
                         scene_file: str | Path | None = None) -> dict[str, Any]:
-        """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); a deck takes no job template."""
+        """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); a deck takes no job template; a
+        relative ``executable`` (allowed by the user: :mod:`stepnf.programs`) is made absolute from ``base_dir``."""
         c = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
+        if "executable" in c:  # a relative path is the scene's, not the current folder's
+            c["executable"] = resolve_program(c["executable"], base_dir)
         if "deck" in c and "template" in c:
             raise SceneError(scene_file, "model.template", f"the deck {c['deck']} is the model: stepnf includes it "
                              "and appends its own steps, so no job template is used; remove template")
         return c
+
+    @classmethod
+    def input_files(cls, checked: Mapping[str, Any]) -> list[Path]:
+        """The files a ``deck`` or ``mesh`` includes (``*INCLUDE``, nested ones too), for the key of stored
+        results (:mod:`stepnf.model_key`); an unreadable deck is left to the build to report."""
+        from .inpfile import inp_lines
+
+        out: list[Path] = []
+        for key in ("deck", "mesh"):
+            if checked.get(key) is not None:
+                try:
+                    out += [p for p in dict.fromkeys(line.source.path for line in inp_lines(Path(checked[key])))
+                            if p != Path(checked[key])]
+                except (OSError, SceneError):
+                    pass
+        return out
 
     def output_mesh(self):
         """The nodes and elements ccx runs, for the ParaView fields (:mod:`.fields_mesh`)."""

@@ -24,6 +24,8 @@ naming the top file and the line (``line 3 of sub.inp, included at line 5``).
 """
 from __future__ import annotations
 
+import ast
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator, NamedTuple
@@ -72,10 +74,40 @@ def where(line: Line) -> str:
 
 
 class InpError(MeshError):
-    """An ``.inp`` file stepnf cannot take: the top file, the line and what is wrong (exit code 2)."""
+    """An ``.inp`` file stepnf cannot take: the top file, the line and what is wrong (exit code 2).
 
-    def __init__(self, top: Path, line: Line | None, message: str):
+    On a line of an included file the message names the file, the line and the problem but does not
+    quote the line (:func:`unquoted`): ``*INCLUDE, INPUT=`` may name any file (``/etc/shadow``), and an
+    error must not show its content."""
+
+    def __init__(self, top: Path, line: Line | None, message: str, *, include_line: bool = False):
+        if line is not None and line.source.via is not None and not include_line:  # an *INCLUDE names a file
+            message = unquoted(message, line.text)
         super().__init__(top, f"{where(line)}: {message}" if line is not None else message)
+
+
+_QUOTED = re.compile(r"'(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\"")
+HIDDEN = "<not shown: a line of an included file>"
+
+
+def unquoted(message: str, text: str) -> str:
+    """``message`` with every piece of ``text`` it quotes (its repr, or a field of it) replaced by :data:`HIDDEN`."""
+
+    def hide(m: re.Match) -> str:
+        try:
+            inner = str(ast.literal_eval(m.group()))
+        except (ValueError, SyntaxError):
+            inner = m.group()[1:-1]
+        return HIDDEN if inner and " ".join(inner.upper().split()) in folded else m.group()
+
+    folded = " ".join(text.upper().split())  # keyword names are shown upper-cased, blanks collapsed
+    out = _QUOTED.sub(hide, message)
+    pieces = {text, *(t.strip() for t in text.replace("=", ",").split(","))}
+    for piece in sorted((p for p in pieces if len(p) >= 3), key=len, reverse=True):
+        # what is left unquoted (a keyword's name, an option's value), in any case and spacing
+        pattern = r"\s+".join(re.escape(w) for w in piece.split())
+        out = re.sub(pattern, HIDDEN, out, flags=re.IGNORECASE)
+    return out
 
 
 def parse_keyword(text: str) -> tuple[str, dict[str, str]]:
@@ -106,14 +138,15 @@ def inp_lines(top: Path) -> Iterator[Line]:
             if s.startswith("*") and parse_keyword(s)[0] == "INCLUDE":
                 inc = parse_keyword(s)[1].get("INPUT", "").strip('"')
                 if not inc:
-                    raise InpError(top, line, "*INCLUDE without INPUT=<file>")
+                    raise InpError(top, line, "*INCLUDE without INPUT=<file>", include_line=True)
                 path = Path(inc) if Path(inc).is_absolute() else top.parent / inc
                 if not path.is_file():
                     raise InpError(top, line, f"*INCLUDE, INPUT={inc}: no file {path} (a relative INPUT is "
-                                              f"relative to the folder of {top.name}, where ccx runs)")
+                                              f"relative to the folder of {top.name}, where ccx runs)",
+                                   include_line=True)
                 if path.resolve() in stack:
                     raise InpError(top, line, f"*INCLUDE, INPUT={inc}: an include cycle ({path.name} includes "
-                                              "itself, directly or through other files)")
+                                              "itself, directly or through other files)", include_line=True)
                 yield from walk(Source(path, (src, lineno)), stack + (path.resolve(),))
                 continue
             yield line

@@ -47,6 +47,14 @@ ${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
 ``matrices.export``, ``forces_calcul.comm`` replace the shipped ones), ``force_route``, ``version``, ``ncpus``,
 ``memory_mb`` (``.export`` parameters), ``timeout``, ``workdir``, ``keep``,
 ``parallel_runs`` (code_aster runs at a time, each on a share of a batch).
+``command`` and ``templates`` run what the scene names (the command files are
+Python): honoured only when the user allows programs named by scenes
+(``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.programs`),
+the command then printed before it first runs; a relative program in
+``command`` is the scene folder's. ``mesh_name`` (or a MED file's own mesh
+name), ``version`` and ``workdir`` are written into the command and
+``.export`` files, so quotes, backslashes and control characters are refused
+there (they could add code or lines).
 
 MED helpers (:mod:`.med`): :func:`read_nodal_steps`, :func:`list_fields`,
 :func:`write_med`, :func:`add_nodal_field`.

@@ -45,6 +45,7 @@ only; it was never run in code_aster by stepnf.
 from __future__ import annotations
 
 import math
+import re
 import shlex
 import shutil
 from importlib import resources
@@ -62,6 +63,7 @@ from stepnf.external.keys import MEMORY_MB, NCPUS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
 from stepnf.materials import MATERIALS_KEY, Material, assign_cells
+from stepnf.programs import resolve_program
 from stepnf.schema import Key, Schema
 
 from .materials import has_axes, is_plain, materials_text
@@ -81,10 +83,10 @@ MED_SUFFIXES = (".med", ".rmed", ".mmed")
 MODEL_KEYS = Schema(
     *solid_model_keys(ELEMENTS, MED_SUFFIXES, "a user's MED volume mesh"),
     Key("mesh_name", "text", "name of the mesh inside the MED file (default: its first mesh)", what="a mesh name"),
-    Key("templates", "folder", f"a folder of templates overriding the shipped ones (any of {list(TEMPLATE_NAMES)})",
-        what="a template folder name"),
-    Key("command", "text", "the command running one job; ${export} and ${workdir} are filled in",
-        default=DEFAULT_COMMAND, what="a command"),
+    Key("templates", "folder", f"a folder of templates overriding the shipped ones (any of {list(TEMPLATE_NAMES)}; "
+        "Python run by code_aster: only with --allow-programs)", what="a template folder name"),
+    Key("command", "text", "the command running one job; ${export} and ${workdir} are filled in (a command the "
+        "scene names runs only with --allow-programs)", default=DEFAULT_COMMAND, what="a command"),
     Key("version", "text", "code_aster version of the .export file", default="stable", what="a version name"),
     Key("force_route", "choice", "how code_aster computes the internal forces: one STAT_NON_LINE with every dof "
         "imposed (EVOL_IMPO), or CALCUL FORC_INTE_ELEM per field (one element loop, no Newton iteration; checked "
@@ -100,6 +102,13 @@ def shipped_template(name: str) -> CommandTemplate:
     """A template shipped with the adapter (``templates/code_aster/<name>`` of the source tree)."""
     res = resources.files("stepnf_code_aster").joinpath("templates", name)
     return CommandTemplate(res.read_text(encoding="utf-8"), source=f"stepnf_code_aster/templates/{name}")
+
+
+def _plain(value: str, key: str, what: str, pattern: str) -> None:
+    """A ValueError naming ``key`` unless ``value`` matches ``pattern``: a value written into the command
+    files (Python run by code_aster) or the .export file cannot add code or lines to them."""
+    if not re.fullmatch(pattern, value):
+        raise ValueError(f"{key} {value!r}: expected {what}, without quotes, backslashes or control characters")
 
 
 def triplets_to_matrix(values, rows, cols, n: int) -> sp.csr_matrix:
@@ -144,6 +153,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     name = "code_aster"
     program = "run_aster"
     model_keys = MODEL_KEYS
+    program_keys = {"command": "is the command stepnf would run for every code_aster job",
+                    "templates": "names command files that code_aster would run (they are Python programs)"}
 
     def __init__(self, points: np.ndarray, *, material: Mapping[str, float], cells: np.ndarray | None = None,
                  cell_type: str = "hexahedron20", mesh_file: str | Path | None = None, mesh_name: str = "mesh",
@@ -158,6 +169,12 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             raise ValueError("empty code_aster command")
         run.setdefault("executable", shlex.split(command)[0])
         super().__init__(**run)
+        _plain(mesh_name, "mesh_name", "the mesh's name (written into the command files, which are Python)",
+               r"[^\x00-\x1f\x7f\"'\\]+")
+        _plain(version, "version", "a code_aster version name (a line of the .export file)", r"[A-Za-z0-9_.+-]+")
+        if self.workdir is not None:
+            _plain(str(self.workdir), "workdir", "a folder name (its path is written into the .export file)",
+                   r"[^\x00-\x1f\x7f]+")
         self.points = np.asarray(points, dtype=float)
         self.cells = None if cells is None else np.asarray(cells, dtype=np.int64)
         self.cell_type = cell_type
@@ -224,6 +241,23 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def _comm(self, job: str) -> str:
         """The template name of ``<job>.comm`` (the force job follows ``force_route``)."""
         return FORCE_ROUTES[self.force_route] if job == "forces" else f"{job}.comm"
+
+    @classmethod
+    def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
+                        scene_file: str | Path | None = None) -> dict[str, Any]:
+        """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); ``command`` and ``templates``
+        only when the user allows programs (:mod:`stepnf.programs`); the command's program, when a
+        relative path, is the scene folder's (passed on as ``executable``)."""
+        c = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
+        if "command" in config:
+            try:
+                words = shlex.split(c["command"])
+            except ValueError as exc:
+                raise SceneError(scene_file, "model.command", f"cannot split the command into words: {exc}") from None
+            if not words:
+                raise SceneError(scene_file, "model.command", "an empty command; give e.g. \"run_aster ${export}\"")
+            c["executable"] = resolve_program(words[0], base_dir)
+        return c
 
     @staticmethod
     def _template(name: str, folder: str | Path | None) -> CommandTemplate:
@@ -296,7 +330,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         vals = self._values(workdir, job, n_fields)
         (workdir / f"{job}.comm").write_text(self.templates[self._comm(job)].render(vals))
         (workdir / f"{job}.export").write_text(self.templates[f"{job}.export"].render(vals))
-        return shlex.split(self.command.render(vals))
+        # each value one shell word, whatever its characters (a work folder with a space stays one argument)
+        return shlex.split(self.command.render({k: shlex.quote(str(v)) for k, v in vals.items()}))
 
     def run(self, argv, workdir, *, log_name="solver.log"):
         """Run the command; a missing executable gets a hint about docker images."""

@@ -24,6 +24,7 @@ from stepnf.lazy_matrices import LazyMatrices
 
 class FormsAdapter(LazyMatrices, SolverAdapter):
     provides_intrusive_tensors = True
+    uses_mpi = True  # dolfinx starts MPI: stepnf checks first that Open MPI can (stepnf.mpi_env)
     #: the free dofs once the boundary conditions' dofs are removed (``None``: every dof is free)
     _free: FreeDofs | None = None
 

@@ -12,6 +12,7 @@ import functools
 import io
 import logging
 import os
+import stat
 import sys
 import tempfile
 import warnings
@@ -27,6 +28,13 @@ def cache_dir() -> Path:
     ``$XDG_CACHE_HOME/stepnf/fenicsx`` (``~/.cache/stepnf/fenicsx``); else, with one
     :class:`OutputWarning`, ``<temporary folder>/stepnf-<uid>/fenicsx`` (a read-only
     image run by a user without a writable home). Resolved once per environment.
+
+    The cache holds compiled ``.so`` files the next run loads, so it must be the user's
+    alone (:func:`private_folder`): folders made for it are created 0700 whatever the
+    umask, and a folder (or its parent) that belongs to another user or is group- or
+    world-writable is not used: an error for ``STEPNF_CACHE_DIR``, else the next
+    candidate with one :class:`OutputWarning` (in the temporary folder, a fresh
+    ``stepnf-<uid>-XXXX`` made by :func:`tempfile.mkdtemp`).
     """
     env = os.environ.get("STEPNF_CACHE_DIR")
     xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
@@ -37,40 +45,107 @@ def cache_dir() -> Path:
     return _resolve_cache(env or None, xdg, tmp)
 
 
+def _make_private(path: Path) -> None:
+    """Create ``path`` and its missing parents with mode 0700 (chmod-ed: the umask may be 000)."""
+    missing = []
+    p = path
+    while not os.path.lexists(p) and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    for p in reversed(missing):
+        try:
+            os.mkdir(p, 0o700)
+            os.chmod(p, 0o700)
+        except FileExistsError:
+            continue
+        except OSError:  # check_folder says why
+            return
+
+
+def unsafe_reason(path: Path) -> str | None:
+    """Why ``path`` is no folder to load compiled code from, or ``None``: it (and its parent, unless
+    sticky like /tmp) must not be group- or world-writable, and must be this user's (the parent this
+    user's or root's)."""
+    if not hasattr(os, "geteuid"):
+        return None
+    uid = os.geteuid()
+    for p, owners in ((path, (uid,)), (path.parent, (uid, 0))):
+        try:
+            st = os.stat(p)
+        except OSError as exc:
+            return f"{p} cannot be examined ({exc.strerror or exc})"
+        if st.st_uid not in owners:
+            return f"{p} belongs to another user (uid {st.st_uid})"
+        sticky = p != path and st.st_mode & stat.S_ISVTX
+        if st.st_mode & 0o022 and not sticky:
+            return f"{p} is writable by others (mode {stat.S_IMODE(st.st_mode):04o})"
+    return None
+
+
+def private_folder(path: Path) -> tuple[str | None, str | None]:
+    """Make ``path`` a cache folder (:func:`_make_private`); ``(why it is not writable, why it is not
+    safe)``, each ``None`` when all is well."""
+    from stepnf.atomic import check_folder
+
+    _make_private(path)
+    why = check_folder(path)
+    return why, (None if why else unsafe_reason(path))
+
+
 @functools.lru_cache(maxsize=None)
 def _resolve_cache(env: str | None, xdg: str, tmp: str | None) -> Path:
-    from stepnf.atomic import check_folder
     from stepnf.errors import OutputError, OutputWarning
 
     if env is not None:
         path = Path(env).expanduser() / "fenicsx"
-        why = check_folder(path)
-        if why:
-            raise OutputError(f"STEPNF_CACHE_DIR={env}: the FEniCSx form cache {path} is not usable ({why}); "
-                              "set STEPNF_CACHE_DIR to a writable folder or unset it", path=path)
+        why, unsafe = private_folder(path)
+        if why or unsafe:
+            raise OutputError(f"STEPNF_CACHE_DIR={env}: the FEniCSx form cache {path} is not usable "
+                              f"({why or unsafe}); set STEPNF_CACHE_DIR to a writable folder or unset it", path=path)
         return path
+    refused = []  # caches writable by others: said in the warning of the one used instead
     repo = Path(__file__).resolve().parents[3]
-    if (repo / "stepnf").is_dir() and (repo / "solvers").is_dir() and not check_folder(repo / ".cache" / "fenicsx"):
-        return repo / ".cache" / "fenicsx"
+    if (repo / "stepnf").is_dir() and (repo / "solvers").is_dir():
+        why, unsafe = private_folder(repo / ".cache" / "fenicsx")
+        if not why and not unsafe:
+            return repo / ".cache" / "fenicsx"
+        refused += [unsafe] if unsafe else []
     home = Path(xdg).expanduser() / "stepnf" / "fenicsx"
-    why_home = check_folder(home)
-    if not why_home:
+    why_home, unsafe = private_folder(home)
+    refused += [unsafe] if unsafe else []
+    if not why_home and not unsafe:
+        if refused:
+            _warn(f"form cache: {refused[0]}: not used (another user could put code in it); using {home}",
+                  OutputWarning)
         return home
     if tmp is None:
-        raise OutputError(f"no writable folder for the FEniCSx form cache: {why_home}; no writable temporary "
-                          "folder either; set STEPNF_CACHE_DIR to a writable folder", path=home)
+        raise OutputError(f"no writable folder for the FEniCSx form cache: {why_home or unsafe}; no writable "
+                          "temporary folder either; set STEPNF_CACHE_DIR to a writable folder", path=home)
     uid = os.getuid() if hasattr(os, "getuid") else os.getpid()
     path = Path(tmp) / f"stepnf-{uid}" / "fenicsx"
-    why = check_folder(path)
-    if not why and hasattr(os, "getuid") and path.parent.stat().st_uid != uid:  # another user's folder in /tmp
-        path = Path(tempfile.mkdtemp(prefix=f"stepnf-{uid}-", dir=tmp)) / "fenicsx"
-        why = check_folder(path)
+    why, unsafe_tmp = private_folder(path)
+    if why or unsafe_tmp:  # another user's folder in /tmp, or one others can write: a fresh one of our own
+        try:
+            path = Path(tempfile.mkdtemp(prefix=f"stepnf-{uid}-", dir=tmp)) / "fenicsx"
+        except OSError as exc:
+            why = why or f"cannot create a folder in {tmp}: {exc.strerror or exc}"
+        else:
+            why, unsafe_tmp = private_folder(path)
+            why = why or unsafe_tmp
     if why:
-        raise OutputError(f"no writable folder for the FEniCSx form cache: {why_home}; {why}; "
+        raise OutputError(f"no writable folder for the FEniCSx form cache: {why_home or unsafe}; {why}; "
                           "set STEPNF_CACHE_DIR to a writable folder", path=home)
-    plain_warnings()
-    warnings.warn(f"form cache: {home} not writable ({why_home}), using {path}", OutputWarning, stacklevel=3)
+    if refused:
+        _warn(f"form cache: {refused[0]}: not used (another user could put code in it); using {path}",
+              OutputWarning)
+    else:
+        _warn(f"form cache: {home} not writable ({why_home}), using {path}", OutputWarning)
     return path
+
+
+def _warn(text: str, category: type[Warning]) -> None:
+    plain_warnings()
+    warnings.warn(text, category, stacklevel=4)
 
 
 @contextlib.contextmanager

@@ -35,6 +35,7 @@ import numpy as np
 from stepnf.boundary import BoundaryCondition, FreeDofs
 from stepnf.errors import SceneError
 from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals, spherical_cap
+from stepnf.geometry.rim import rim_is_held, rim_resolution
 
 from . import _compat
 from ._forms_adapter import FormsAdapter
@@ -138,10 +139,16 @@ class FenicsxAdapter(FormsAdapter):
             quadrature_degree: int = 4, boundary: Sequence[BoundaryCondition | Mapping[str, Any]] = (),
             scene_file: Path | None = None, **resolution: Any) -> "FenicsxAdapter":
         """A spherical cap (``R = inf``: flat plate), free unless ``boundary`` holds it (its node set ``"edge"``:
-        every node of the lateral face); see :func:`stepnf.geometry.spherical_cap`."""
+        every node of the lateral face); see :func:`stepnf.geometry.spherical_cap`. Conditions that hold the
+        whole rim refine the mesh towards it unless ``resolution`` says otherwise
+        (:mod:`stepnf.geometry.rim`: more rings, graded)."""
         if element not in ("hex27", "tet10"):
             raise ValueError(f"Unknown element {element!r}. Pick one of ['hex27', 'tet10']")
         mesh = spherical_cap(a, R, h, element="hex27", **resolution)
+        boundary = as_conditions(boundary, scene_file)
+        held = rim_resolution(resolution, rim_is_held(mesh, boundary, scene_file))
+        if held != resolution:
+            mesh = spherical_cap(a, R, h, element="hex27", **held)
         if element == "tet10":
             from stepnf.geometry.tets import hex27_to_tetra
 
