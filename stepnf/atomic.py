@@ -22,6 +22,12 @@ after that check rather than following it. A folder stepnf makes for itself
 user's output folder may (a results folder on another disk is their choice).
 :func:`linked` finds such links before a run starts.
 
+Private folders: a folder whose content a later run trusts (the checkpoint
+folder: forces reused; FEniCSx's form cache: compiled code loaded) must be the
+user's alone. :func:`make_private` creates it 0700 whatever the umask;
+:func:`unsafe_reason` says why an existing one is not (another user's, or
+group- or world-writable); :func:`private_folder` does both for a cache.
+
 Any failure removes the temporary file and raises :class:`OutputError`
 naming the file and the reason ("no space left on device", ...); the
 previous file, if any, is untouched.
@@ -49,7 +55,8 @@ from typing import Any, Callable, Iterable
 
 from .errors import OutputError, StoreError
 
-__all__ = ["write_bytes", "hdf5_bytes", "write_hdf5", "check_format", "check_folder", "reason", "linked"]
+__all__ = ["write_bytes", "hdf5_bytes", "write_hdf5", "check_format", "check_folder", "reason", "linked",
+           "make_private", "unsafe_reason", "private_folder"]
 
 
 def reason(exc: BaseException) -> str:
@@ -72,17 +79,72 @@ def _link_error(path: Path, what: str) -> OutputError:
 
 
 def _open_folder(folder: Path, *, private: bool, mkdir: bool) -> int:
-    """A file descriptor of ``folder`` (created if ``mkdir``); with ``private`` it must be no symbolic link."""
+    """A file descriptor of ``folder`` (created if ``mkdir``); with ``private`` it must be no symbolic link
+    and is created 0700 (:func:`make_private`; its parent as any folder of the user's)."""
     if mkdir and not private:
         folder.mkdir(parents=True, exist_ok=True)
     elif mkdir:
         folder.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            os.mkdir(folder)
-        except FileExistsError:
-            pass
+        make_private(folder)
     flags = os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0)
     return os.open(folder, flags | (getattr(os, "O_NOFOLLOW", 0) if private else 0))
+
+
+def make_private(path: Path) -> None:
+    """Create ``path`` and its missing parents with mode 0700 (chmod-ed: the umask may be 000); a folder
+    already there is left as it is (:func:`unsafe_reason` judges it), one that cannot be made is left to
+    the writer or :func:`check_folder` to explain."""
+    missing = []
+    p = Path(path)
+    while not os.path.lexists(p) and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    for p in reversed(missing):
+        try:
+            os.mkdir(p, 0o700)
+            os.chmod(p, 0o700)
+        except FileExistsError:
+            continue
+        except OSError:
+            return
+
+
+def _unsafe_stat(st: os.stat_result, p: Path, owners: tuple[int, ...], sticky_ok: bool) -> str | None:
+    """Why the folder ``p`` of status ``st`` is not private: not one of ``owners``', or writable by group
+    or others (unless sticky, like /tmp, when ``sticky_ok``)."""
+    if st.st_uid not in owners:
+        return f"{p} belongs to another user (uid {st.st_uid})"
+    if st.st_mode & 0o022 and not (sticky_ok and st.st_mode & stat.S_ISVTX):
+        return f"{p} is writable by others (mode {stat.S_IMODE(st.st_mode):04o})"
+    return None
+
+
+def unsafe_reason(path: Path, *, parent: bool = True) -> str | None:
+    """Why ``path`` is no folder to trust the content of (compiled code to load, stored forces to reuse),
+    or ``None``: it must be this user's and not group- or world-writable; with ``parent``, its parent too
+    must not be writable by others (unless sticky like /tmp) and be this user's or root's (else another
+    user could swap the folder for theirs)."""
+    if not hasattr(os, "geteuid"):
+        return None
+    uid = os.geteuid()
+    checks = [(Path(path), (uid,), False)] + ([(Path(path).parent, (uid, 0), True)] if parent else [])
+    for p, owners, sticky_ok in checks:
+        try:
+            st = os.stat(p)
+        except OSError as exc:
+            return f"{p} cannot be examined ({exc.strerror or exc})"
+        why = _unsafe_stat(st, p, owners, sticky_ok)
+        if why:
+            return why
+    return None
+
+
+def private_folder(path: Path) -> tuple[str | None, str | None]:
+    """Make ``path`` a private folder (:func:`make_private`): ``(why no file can be written there, why it is
+    not safe)`` (:func:`check_folder`, :func:`unsafe_reason`), each ``None`` when all is well."""
+    make_private(path)
+    why = check_folder(path)
+    return why, (None if why else unsafe_reason(path))
 
 
 def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what: str = "file",
@@ -94,7 +156,8 @@ def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what:
 
     Never through a symbolic link: a link at ``path`` is refused (an :class:`OutputError` naming
     it; its target is untouched), and with ``private_folder`` (a folder stepnf makes for itself,
-    the checkpoint folder) so is a link in place of the folder. The temporary file is created
+    the checkpoint folder) so is a link in place of the folder, or a folder of another user or
+    writable by others; a missing one is created 0700 (:func:`make_private`). The temporary file is created
     with ``O_EXCL | O_NOFOLLOW`` and renamed relative to one descriptor of the folder, so a link
     planted after the check is replaced by the file (``rename`` never follows its destination),
     never written through. The user's output folder itself may be a link.
@@ -111,6 +174,11 @@ def write_bytes(path: str | Path, data: bytes | bytearray | memoryview, *, what:
             if private_folder and os.path.islink(folder):
                 raise _link_error(folder, what) from exc
             raise
+        why = _unsafe_stat(os.fstat(dfd), folder, (os.geteuid(),), False) \
+            if private_folder and hasattr(os, "geteuid") else None
+        if why:  # another user's folder, or one others can write into: never trusted, never written
+            raise OutputError(f"cannot write the {what} {path}: {why}; stepnf keeps this folder private: "
+                              "remove it", path=path)
         try:
             st = os.stat(name, dir_fd=dfd, follow_symlinks=False)
         except FileNotFoundError:

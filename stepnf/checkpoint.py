@@ -27,6 +27,14 @@ also keyed by the model, in two ways:
   version, a solver executable upgraded in place) for one force evaluation per
   resumed run. A mismatch drops every chunk, with the same warning.
 
+The folder is the user's alone (:mod:`stepnf.atomic`'s private folders):
+created 0700 whatever the umask. One that others can write into (group- or
+world-writable: in a shared output folder anyone may have made
+``.NAME.partial/`` first, with a matching ``model_key.json`` and forged
+chunks) is dropped with the same warning; one of another user (or a symbolic
+link) is neither read nor removed: the run goes on without checkpoints, with
+one warning naming it.
+
 A mismatch recomputes rather than refuses: a checkpoint is a convenience, and a
 run started again from the beginning is what the user asked for. Checkpoints
 are never a reason to fail either: a chunk that cannot be written (full disk,
@@ -37,14 +45,17 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
+import stat
 import warnings
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .atomic import write_bytes
+from .atomic import unsafe_reason, write_bytes
+from .canonical import dumps
 from .errors import OutputError, OutputWarning, StaleWarning
 
 #: File beside the chunks holding the model key they were computed for.
@@ -57,14 +68,19 @@ KEY_FILE = "model_key.json"
 PROBE_RTOL = 1e-5
 
 
+def _regular(path: Path) -> bool:
+    """Whether ``path`` is a regular file, not followed if a link: a FIFO would block ``np.load`` for ever,
+    a link is nothing stepnf wrote (chunks are written without following links)."""
+    try:
+        return stat.S_ISREG(os.lstat(path).st_mode)
+    except OSError:
+        return False
+
+
 def fingerprint(U: np.ndarray) -> np.ndarray:
     """Projections of each field (row of U) on a fixed pseudo-random vector, plus its norm."""
     w = np.random.default_rng(12345).standard_normal(U.shape[1])
     return np.column_stack([U @ w, np.linalg.norm(U, axis=1)])
-
-
-def _canonical(key: Any) -> str:
-    return json.dumps(key, sort_keys=True, default=str)
 
 
 class Checkpoint:
@@ -86,11 +102,34 @@ class Checkpoint:
         self.dropped: str | None = None  # why the stored chunks were not reused
         self._key_written = False
         self._probed = False
-        if key is not None:
+        self.refused: str | None = None  # why the folder is neither read nor written (not the user's)
+        self._check_private()
+        if key is not None and self.refused is None:
             self._check_key(describe or (lambda old, new: "another model key"))
 
     def _path(self, plan: str, index: int) -> Path:
         return self.folder / f"{plan}_{index:06d}.npz"
+
+    def _check_private(self) -> None:
+        """Drop a folder others can write into; refuse (use no checkpoint) one of another user or a link."""
+        if not os.path.lexists(self.folder):
+            return
+        why = f"{self.folder} is a symbolic link" if self.folder.is_symlink() \
+            else unsafe_reason(self.folder, parent=False)
+        if why is None:
+            return
+        try:
+            st = os.lstat(self.folder)
+        except OSError:
+            st = None
+        if st is not None and not stat.S_ISLNK(st.st_mode) and st.st_uid == os.geteuid():  # ours, writable by others
+            self._drop(f"is writable by others (mode {stat.S_IMODE(st.st_mode):04o}): another user could have put "
+                       "forces in it")
+            return
+        self.refused = self.disabled = why
+        warnings.warn(f"checkpointing disabled: {why}: not used (stepnf keeps its checkpoint folder private); "
+                      "the run goes on without checkpoints (remove it to resume interrupted runs again)",
+                      OutputWarning, stacklevel=3)
 
     def _check_key(self, describe: Callable[[Any, Mapping[str, Any]], str]) -> None:
         """Drop the stored chunks when they were computed for another model (or for an unknown one)."""
@@ -101,7 +140,7 @@ class Checkpoint:
         except (OSError, ValueError):
             self._drop("was written without a model key (by an earlier stepnf)")
             return
-        if _canonical(old) != _canonical(self.key):
+        if dumps(old) != dumps(self.key):
             self._drop(f"was made for another model ({describe(old, self.key)})")  # type: ignore[arg-type]
 
     def _drop(self, why: str) -> None:
@@ -113,20 +152,24 @@ class Checkpoint:
         self._key_written = False
 
     def load(self, plan: str, index: int, U: np.ndarray,
-             probe: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray | None:
+             probe: Callable[[np.ndarray], np.ndarray] | None = None,
+             shape: tuple[int, ...] | None = None) -> np.ndarray | None:
         """Stored result of chunk ``index`` of ``plan`` if it was computed for the same fields (and model).
 
         ``probe(U1)``: the solver's forces of the fields ``U1`` now, called once per run on the first
-        chunk about to be reused (see the module docstring).
+        chunk about to be reused (see the module docstring). ``shape``: the shape the result must have
+        (the same fields reduced another way, e.g. projected on another number of modes, are not reused).
         """
         path = self._path(plan, index)
-        if not path.exists():
+        if self.refused is not None or not _regular(path):
             return None
         try:
             with np.load(path) as z:
                 fp, out = z["fingerprint"], z["result"]
                 stored_probe = z["probe"] if "probe" in z.files else None
         except Exception:  # a damaged chunk is recomputed, never trusted
+            return None
+        if shape is not None and out.shape != tuple(shape):
             return None
         new = fingerprint(U)
         if fp.shape != new.shape or not np.allclose(fp, new, rtol=1e-9, atol=1e-9 * np.abs(new).max()):
@@ -162,7 +205,7 @@ class Checkpoint:
         for attempt in (0, 1):
             try:
                 if self.key is not None and not self._key_written:
-                    write_bytes(self.folder / KEY_FILE, _canonical(self.key).encode("utf-8"),
+                    write_bytes(self.folder / KEY_FILE, dumps(self.key).encode("utf-8"),
                                 what="checkpoint model key", private_folder=True)
                     self._key_written = True
                 write_bytes(self._path(plan, index), data, what="checkpoint chunk", private_folder=True)
@@ -179,4 +222,6 @@ class Checkpoint:
                 return
 
     def discard(self) -> None:
-        shutil.rmtree(self.folder, ignore_errors=True)
+        """Remove the folder (the run's results are written); one not the user's is left alone."""
+        if self.refused is None:
+            shutil.rmtree(self.folder, ignore_errors=True)

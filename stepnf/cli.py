@@ -20,7 +20,7 @@ from .errors import NumericalError, SceneError, SolverRunError, StepnfError, Unk
 from .limits import out_of_memory, reserve_blas_buffer, short_of_memory
 from .signals import handled, interruption
 from .programs import allow_programs, program_flag
-from .printable import printable, safe_print as print  # noqa: A001 - control characters escaped (stepnf.printable)
+from .printable import SafeArgumentParser, printable, safe_print as print  # noqa: A001 - control characters escaped
 
 
 def _cmd_solvers(args: argparse.Namespace) -> int:
@@ -295,7 +295,7 @@ def _cmd_fig4(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
+    parser = SafeArgumentParser(prog="stepnf", description=__doc__.splitlines()[0])
     parser.add_argument("--debug", action="store_true",
                         help="on failure, also print the Python traceback (for bug reports)")
     parser.add_argument("--version", action="version", version=_version())

@@ -14,11 +14,14 @@ would compute the same thing. That is decided by a *key*, a JSON-able dict with 
   rerun with a longer time-out still resumes;
 - ``files``: the SHA-256 of the content of every input file the scene names: every value of a
   key the solver declares as a ``file`` or ``folder`` (a folder: every file under it, with its
-  relative path), and every other string of ``[model]`` that names an existing file (relative to
-  the scene's folder), so an adapter without declared keys is covered too; and every file the
+  relative path); the heavy-data files an XDMF file (``.xdmf``, ``.xmf``) references
+  (``model.mesh.data[0]``: the ``.h5`` beside a mesh, :func:`xdmf_data_files`); and every file the
   adapter's :meth:`~stepnf.schema.FromScene.input_files` lists (CalculiX: the files a deck or mesh
-  ``*INCLUDE`` s). The generic rule needs no code per adapter; what it cannot see (another build
-  of the same adapter version, a solver executable upgraded in place) is what the checkpoint's probe
+  ``*INCLUDE`` s). Nothing else is read: another string that happens to name a file is a value like
+  any other (an adapter whose model reads more lists it in ``input_files``), and only regular files
+  and folders outside ``/proc``, ``/sys`` and ``/dev`` are read (:func:`input_sha256`: a device, a
+  FIFO or ``/proc/kcore`` is recorded as not read). What the key cannot see (another build of the
+  same adapter version, a solver executable upgraded in place) is what the checkpoint's probe
   catches (:mod:`stepnf.checkpoint`);
 - ``analysis`` (:func:`scene_key` only): every ``[analysis]`` value after defaults.
 
@@ -36,10 +39,12 @@ import hashlib
 import json
 import math
 import os
+import stat
 import time
 from pathlib import Path
 from typing import Any, Mapping
 
+from .canonical import dumps  # the key as canonical JSON: what digest hashes, what a store keeps
 from .schema import Schema
 
 #: Version of the key's layout: a key of another version is another key.
@@ -52,6 +57,10 @@ _NOT_ANALYSIS = ("solver", "model", "output_dir", "output_name", "write_hdf5", "
                  "base_dir", "text", "allow_programs")
 _INCLUDED: dict[tuple, list[Path]] = {}  # (adapter, files the scene names) -> the files they include
 _HASHED: dict[tuple, str] = {}  # (path, size, mtime, ctime, inode) -> sha256: a sweep's shared mesh read once
+#: Folders whose files are never read as model input (kernel and device files; /proc/kcore is "regular").
+SYSTEM_FOLDERS = ("/proc", "/sys", "/dev")
+#: Suffixes of XDMF files, whose heavy data (HDF5, binary) lives in other files they name.
+XDMF_SUFFIXES = (".xdmf", ".xmf")
 
 
 def model_key(scene: Any) -> dict[str, Any]:
@@ -75,19 +84,16 @@ def model_key(scene: Any) -> dict[str, Any]:
     base = Path(scene.base_dir)
     for dotted, value in model.items():
         kind = _kind_of(declared, dotted)
-        if kind == "path" or not isinstance(value, str) or not value or "\n" in value or len(value) > 4096:
+        if kind not in ("file", "folder") or not isinstance(value, str) or not value or "\n" in value \
+                or "\0" in value or len(value) > 4096:
             continue
         p = Path(value) if Path(value).is_absolute() else base / value
-        try:
-            if (kind == "folder" and p.is_dir()) or p.is_file():
-                files[dotted] = {"path": str(p), "sha256": content_sha256(p)}
-        except OSError as exc:  # unreadable now: the run will say so when it reads it
-            files[dotted] = {"path": str(p), "sha256": f"unreadable: {exc.strerror or exc}"}
+        files[dotted] = {"path": str(p), "sha256": input_sha256(p)}
+        if kind == "file" and p.suffix.lower() in XDMF_SUFFIXES:
+            for i, q in enumerate(xdmf_data_files(p)):
+                files[f"{dotted}.data[{i}]"] = {"path": str(q), "sha256": input_sha256(q)}
     for i, p in enumerate(_included(cls, given, files)):
-        try:
-            files[f"include[{i}]"] = {"path": str(p), "sha256": content_sha256(Path(p))}
-        except OSError as exc:
-            files[f"include[{i}]"] = {"path": str(p), "sha256": f"unreadable: {exc.strerror or exc}"}
+        files[f"include[{i}]"] = {"path": str(p), "sha256": input_sha256(Path(p))}
     return {"key_version": KEY_VERSION, "solver": scene.solver, "adapter": _adapter(cls), "model": model,
             "files": files}
 
@@ -115,15 +121,18 @@ def digest(key: Mapping[str, Any]) -> str:
     return hashlib.sha256(dumps(key).encode("utf-8")).hexdigest()
 
 
-def dumps(key: Mapping[str, Any]) -> str:
-    """The key as canonical JSON (what :func:`digest` hashes, what a store keeps)."""
-    return json.dumps(key, sort_keys=True, default=str)
-
-
 def describe_change(old: Mapping[str, Any] | None, new: Mapping[str, Any], limit: int = 3) -> str:
     """What differs from ``old`` to ``new``, in a few words ("model.file /x/s.npz changed", ...)."""
     if not isinstance(old, Mapping) or old.get("key_version") != new.get("key_version"):
         return "stored by an earlier stepnf, which did not record the model"
+    try:
+        return _changes(old, new, limit)
+    except (TypeError, AttributeError, KeyError, ValueError):  # a stored key edited into another shape
+        return "the stored key is damaged (edited by hand?)"
+
+
+def _changes(old: Mapping[str, Any], new: Mapping[str, Any], limit: int) -> str:
+    """:func:`describe_change` of two keys of the same version (raises on a key of another shape)."""
     out = []
     for what in ("solver", "adapter"):
         if old.get(what) != new.get(what):
@@ -163,13 +172,63 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def input_sha256(path: Path) -> str:
+    """What the key records for an input file or folder: its :func:`content_sha256`, or
+    ``"unreadable: why"`` (missing, no permission), or ``"not read: why"`` for what is no model input:
+    neither a regular file nor a folder (a device, a FIFO) or under :data:`SYSTEM_FOLDERS` (links
+    followed)."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError) as exc:
+        return f"unreadable: {getattr(exc, 'strerror', None) or exc}"
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        return "not read: not a regular file or folder"
+    if _in_system_folder(path):
+        return f"not read: a system file (under {', '.join(SYSTEM_FOLDERS)})"
+    try:
+        return content_sha256(path)
+    except OSError as exc:  # unreadable now: the run will say so when it reads it
+        return f"unreadable: {exc.strerror or exc}"
+
+
+def _in_system_folder(path: Path) -> bool:
+    """``path`` (links followed) lies under one of :data:`SYSTEM_FOLDERS` (a loop counts as such)."""
+    try:
+        real = Path(os.path.realpath(path))
+    except (OSError, RuntimeError, ValueError):
+        return True
+    return any(real == Path(s) or Path(s) in real.parents for s in SYSTEM_FOLDERS)
+
+
+def xdmf_data_files(path: Path) -> list[Path]:
+    """The files an XDMF file's ``DataItem`` s keep their data in (``Format="HDF"``: ``mesh.h5:/data0``;
+    ``Format="Binary"``: a file name), relative to the XDMF file's folder as meshio reads them; in order,
+    once each. An unreadable or malformed file names none (the run will say why it cannot read it)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.parse(path).getroot()
+    except (OSError, ET.ParseError, ValueError):
+        return []
+    out: dict[Path, None] = {}
+    for item in root.iter():
+        fmt = item.get("Format", "")
+        if not str(item.tag).endswith("DataItem") or fmt not in ("HDF", "Binary") or not (item.text or "").strip():
+            continue
+        name = item.text.strip().split(":")[0] if fmt == "HDF" else item.text.strip()
+        if name and "\0" not in name:
+            out[path.parent / name] = None
+    return list(out)
+
+
 def content_sha256(path: Path) -> str:
-    """SHA-256 of a file's content, or over every file under a folder (its relative path and content)."""
+    """SHA-256 of a file's content, or over every file under a folder (its relative path and content;
+    only regular files outside :data:`SYSTEM_FOLDERS`, a link to /proc/kcore in a folder is not read)."""
     if not path.is_dir():
         return file_sha256(path)
     folder = path
     h = hashlib.sha256()
-    for p in sorted(q for q in folder.rglob("*") if q.is_file()):
+    for p in sorted(q for q in folder.rglob("*") if q.is_file() and not _in_system_folder(q)):
         h.update(f"{p.relative_to(folder).as_posix()}\0{file_sha256(p)}\n".encode("utf-8", "surrogatepass"))
     return h.hexdigest()
 

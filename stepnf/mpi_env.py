@@ -37,12 +37,17 @@ def mpi_tmpdir_problem() -> str | None:
     """Why Open MPI could not create its session folder here (one sentence), or None when it can.
 
     The folder must be a writable directory, or not exist yet under a writable directory (Open MPI
-    creates the missing levels).
+    creates the missing levels): writable is tried (a folder created and removed), since ``os.access``
+    says yes to root where nothing can be created (``/proc``, a read-only mount). Its path must hold no
+    ``[``: Open MPI 4 aborts at ``MPI_Init`` then ("Comm failure"; ``]``, spaces, quotes, control
+    characters and paths of 1159 characters start, checked on Debian 12).
     """
     if "petsc4py.PETSc" in sys.modules or "mpi4py.MPI" in sys.modules:  # MPI already started
         return None
     var, folder = mpi_tmpdir()
     name = f"{var}={folder}" if var != "default" else str(folder)
+    if "[" in str(folder):
+        return f"{name} holds a '[', which Open MPI cannot use in its session folder's path"
     path = folder
     while not os.path.lexists(path):
         if path.parent == path:
@@ -51,10 +56,21 @@ def mpi_tmpdir_problem() -> str | None:
     if not path.is_dir():
         what = "is not a folder" if path == folder else f"cannot be created ({path} is not a folder)"
         return f"{name} {what}"
-    if not os.access(path, os.W_OK | os.X_OK):
+    if not os.access(path, os.W_OK | os.X_OK) or not _can_create(path):
         what = "is not writable" if path == folder else f"cannot be created ({path} is not writable)"
         return f"{name} {what}"
     return None
+
+
+def _can_create(folder: Path) -> bool:
+    """Whether a folder can be created in ``folder`` (one is, and removed at once)."""
+    import tempfile
+
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".stepnf-mpi-check-", dir=folder))
+    except OSError:
+        return False
+    return True
 
 
 def require_mpi(what: str) -> None:

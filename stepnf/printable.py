@@ -23,11 +23,12 @@ tables returned by :func:`stepnf.table.format_table` and :mod:`stepnf.show`.
 """
 from __future__ import annotations
 
+import argparse
 import builtins
 import re
-from typing import Any, TextIO
+from typing import Any, NoReturn, TextIO
 
-__all__ = ["printable", "safe_print"]
+__all__ = ["printable", "safe_print", "SafeArgumentParser"]
 
 _UNSAFE = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069\ud800-\udfff]")
 
@@ -50,3 +51,12 @@ def safe_print(*values: Any, sep: str = " ", end: str = "\n", file: TextIO | Non
                flush: bool = False) -> None:
     """:func:`print` with each value passed through :func:`printable` (``sep`` and ``end`` are the caller's)."""
     builtins.print(*(printable(v) for v in values), sep=sep, end=end, file=file, flush=flush)
+
+
+class SafeArgumentParser(argparse.ArgumentParser):
+    """An :class:`argparse.ArgumentParser` whose error messages (``unrecognized arguments: ...``, which
+    quote the command line's words raw: a file name ``stepnf run *`` picked up) pass through :func:`printable`;
+    its sub-parsers are of the same class."""
+
+    def error(self, message: str) -> NoReturn:
+        super().error(printable(message))

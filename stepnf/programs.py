@@ -19,7 +19,9 @@ environment. Without permission such a key is a
 :class:`~stepnf.errors.SceneError` (exit code 2) naming the file, the key and
 these three ways; with it, the full command is printed on stderr before it
 first runs (:func:`announce`). The adapter's own default program (``ccx`` or
-``run_aster`` on PATH, the shipped templates) needs no permission. A Dask sweep
+``run_aster`` on PATH, the shipped templates) needs no permission, also when the
+scene writes out the documented default; a bare program name is looked up in
+the absolute folders of PATH only (:func:`which`). A Dask sweep
 passes the decision made where the sweep starts to every case it runs
 (:func:`stepnf.sweep.run_case`); workers never decide it again.
 """
@@ -83,7 +85,8 @@ def check_allowed(scene_file: str | Path | None, key: str, what: str) -> None:
 
 
 def resolve_program(program: str, base_dir: str | Path) -> str:
-    """A program as a scene names it: a bare name (no ``/``) is looked up on PATH when it runs; a
+    """A program as a scene names it: a bare name (no ``/``) is looked up on PATH when it runs (its
+    absolute folders only, :func:`which`); a
     relative path is relative to the scene's folder ``base_dir`` (not the current folder)."""
     if "/" not in program:
         return program
@@ -91,17 +94,27 @@ def resolve_program(program: str, base_dir: str | Path) -> str:
     return str(path if path.is_absolute() else (Path(base_dir) / path).resolve())
 
 
+def which(name: str) -> str | None:
+    """The program a bare ``name`` (no ``/``) runs: the first executable ``name`` in an ABSOLUTE folder
+    of ``PATH``, else ``None``. Empty, ``.`` and other relative entries are skipped: they mean the
+    current folder, which may hold files a received scene shipped (a ``ccx`` beside it)."""
+    import shutil
+
+    folders = os.environ.get("PATH", os.defpath).split(os.pathsep)
+    absolute = os.pathsep.join(f for f in folders if f and os.path.isabs(f))
+    return shutil.which(name, path=absolute) if absolute else None
+
+
 def announce(argv: Sequence[str], why: str) -> None:
     """Print on stderr the full command about to run (``why``: the scene keys that named it; a bare
-    program name is shown as the PATH entry it runs)."""
+    program name is shown as the PATH entry it runs, :func:`which`)."""
     import shlex
-    import shutil
 
     from .printable import printable
 
     args = [str(a) for a in argv]
     if args and "/" not in args[0]:
-        args[0] = shutil.which(args[0]) or args[0]
+        args[0] = which(args[0]) or args[0]
     line = printable(f"running a program {why}: {shlex.join(args)}").replace("\n", "\\n")  # one line, inert
     print(f"stepnf: {line}", file=sys.stderr, flush=True)
 

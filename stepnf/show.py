@@ -34,6 +34,15 @@ def _float(x: Any) -> float | None:
     return None if x is None else _num(x)
 
 
+def _backbone(block: Any) -> Any:
+    """A stored backbone block, its ``valid_up_to`` checked: stepnf stores null (not reached) or a finite
+    number >= 0; anything else (``"inf"``, a negative, a boolean) is a document edited by hand (ValueError)."""
+    v = block.get("valid_up_to") if isinstance(block, dict) else None
+    if v is not None and (isinstance(v, bool) or not (math.isfinite(_num(v)) and _num(v) >= 0)):
+        raise ValueError(f"backbone valid_up_to = {v!r} (stepnf stores null or a finite number >= 0)")
+    return block
+
+
 def _label(x: Any) -> Any:
     return tuple(x) if isinstance(x, list) else x
 
@@ -45,7 +54,7 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
         rec = ModeResult(index=int(m["index"]), label=_label(m.get("label")), omega=_num(m["omega"]),
                          rho=_float(m.get("rho")), rho_mode=m.get("rho_mode"), omega_bar=_float(m.get("omega_bar")),
                          w_max=_float(m.get("w_max")), step=dict(m.get("step") or {}),
-                         flags=list(m.get("flags") or []), backbone=m.get("backbone"))
+                         flags=list(m.get("flags") or []), backbone=_backbone(m.get("backbone")))
         for name, r in (m.get("methods") or {}).items():
             rec.methods[name] = MethodResult(method=name, T=_num(r["T"]), C=tuple(_num(c) for c in r.get("C", ())),
                                              flags=list(r.get("flags") or []), order=r.get("order", "modal"),

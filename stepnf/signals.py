@@ -31,6 +31,7 @@ HANDLED = ("SIGINT", "SIGTERM", "SIGHUP")
 _lock = threading.RLock()  # re-entrant: the handler runs in the main thread, maybe inside track()
 _groups: dict[int, subprocess.Popen] = {}  # process-group id -> its leader
 _received: int | None = None  # the first signal received (its number), None before
+_deferring = 0  # > 0 while the main thread starts a solver (deferred())
 
 
 class Interrupted(KeyboardInterrupt):
@@ -80,6 +81,32 @@ def track(proc: subprocess.Popen) -> Iterator[None]:
             _groups.pop(proc.pid, None)
 
 
+@contextmanager
+def deferred() -> Iterator[None]:
+    """Hold back the :class:`Interrupted` of a handled signal while the main thread runs the block: a solver
+    starting (:func:`stepnf.external.process.run_command`: from ``Popen`` to :func:`track`; raised in
+    between, it would leave the child running unregistered in its own session). The handler still records
+    the signal (:func:`received`) and kills the groups registered so far; the caller checks
+    :func:`received` once the child is tracked and stops (a block that raises instead, the solver not
+    starting, raises the :class:`Interrupted`). Not ``signal.pthread_sigmask``: the child would inherit the
+    blocked mask and start deaf to SIGINT, SIGTERM and SIGHUP. In another thread the handler never runs:
+    the block runs as it is."""
+    global _deferring
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = _received
+    _deferring += 1
+    try:
+        yield
+    except BaseException as exc:
+        if before is None and _received is not None and not isinstance(exc, KeyboardInterrupt):
+            raise Interrupted(_received) from exc
+        raise
+    finally:
+        _deferring -= 1
+
+
 def kill_groups() -> int:
     """SIGKILL every registered process group (the solver and its own children); the number signalled."""
     with _lock:
@@ -109,9 +136,12 @@ def stop_children(signum: int) -> int:
 def _handler(signum: int, frame: object) -> None:
     global _received
     kill_groups()
-    if _received is not None:  # a second signal during the clean-up: stop now
+    if _received is not None and not _deferring:  # a second signal during the clean-up: stop now
         os._exit(128 + _received)
-    _received = signum
+    if _received is None:
+        _received = signum
+    if _deferring:  # a solver is starting: run_command stops once it is tracked (deferred())
+        return
     raise Interrupted(signum)
 
 

@@ -89,12 +89,13 @@ class ForceEvaluator:
         if out is None and reduce is None:
             out = np.empty_like(U)  # filled chunk by chunk: no list of chunks concatenated afterwards
         parts = []
+        cp = self.checkpoint if plan is not None else None
+        # what one field's stored result must look like: a chunk of another shape (another model size, a
+        # reduction to another number of modes) is not these forces and is computed again
+        tail = None if cp is None else (self.n,) if reduce is None else reduce(np.zeros((0, self.n))).shape[1:]
         for i, start in enumerate(range(0, len(U), self.batch_size)):
             chunk = U[start:start + self.batch_size]
-            cp = self.checkpoint if plan is not None else None
-            res = cp.load(plan, i, chunk, probe=self._evaluate) if cp is not None else None
-            if res is not None and reduce is None and res.shape != chunk.shape:
-                res = None  # a stored chunk of another shape is not these forces: computed again
+            res = cp.load(plan, i, chunk, probe=self._evaluate, shape=(len(chunk), *tail)) if cp is not None else None
             if res is None:
                 res = self._evaluate(chunk)
                 first = res[:1].copy() if cp is not None else None  # the probe of a rerun (stepnf.checkpoint)
@@ -247,23 +248,23 @@ def targeted_steps_tangent(tangent: Callable[[np.ndarray], sp.spmatrix], K: sp.s
     for j, p in enumerate(modes):
         phi, qj = Phi[:, j], float(q[j])
 
-        def gh(a: float) -> tuple[np.ndarray, np.ndarray]:
+        def gh(a: float) -> tuple[np.ndarray, float, np.ndarray]:
             # the adapter's tangents enter here: real, (n, n), finite and symmetric, else AdapterError
             Kp, Km = (checked_matrix(tangent(s * phi), "K_T", owner, K.shape[0])
                       for s in (a, -a))
             if counters is not None:
                 counters.tangent_evaluations += 2
             Gv = (Kp - Km) @ phi / (4.0 * a)
-            Hv = ((Kp + Km - 2.0 * K) @ phi) / (6.0 * a * a)  # H(phi, phi, phi)
-            return np.asarray(Gv).ravel(), np.asarray(Hv).ravel()
+            X = (Kp + Km - 2.0 * K) @ phi  # 6 a^2 H(phi, phi, phi)
+            # h divided after the product, as before H was kept: the last bits of h (and results) unchanged
+            h = float(phi @ X) / (6.0 * a * a)
+            return np.asarray(Gv).ravel(), h, np.asarray(X).ravel() / (6.0 * a * a)
 
-        Gv, Hv = gh(qj)
-        res = MasterStep(p=p, q=qj, Gv=Gv, h=float(phi @ Hv), Hv=Hv)
-        h = res.h
+        Gv, h, Hv = gh(qj)
+        res = MasterStep(p=p, q=qj, Gv=Gv, h=h, Hv=Hv)
         if policy.check:
             q2 = policy.check_ratio * qj
-            Gv2, res.Hv_check = gh(q2)
-            h2 = float(phi @ res.Hv_check)
+            Gv2, h2, res.Hv_check = gh(q2)
             Kphi = K @ phi
             res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
             res.error_G = qj * float(np.linalg.norm(Gv - Gv2)) / max(float(np.linalg.norm(Kphi)), 1e-300)

@@ -156,19 +156,14 @@ def _read_scene(path: Path, key: str, name: Any) -> tuple[Path, dict[str, Any]]:
 
 
 def _check_case(path: Path, key: str, case: Case) -> Case:
-    """Validate the case's scene now (fail early, before any worker starts)."""
-    from .scene import parse_scene
-
+    """Validate the case's scene now (fail early, before any worker starts) and compute its key."""
     if case.id in ("", ".", "..") or len(case.id.encode("utf-8", "surrogatepass")) > 1000:
         raise SceneError(path, key, f"case id {case.id!r} cannot name a group of the store; rename the scene "
                          "or shorten the values")
-    from .model_key import scene_key
-
     try:
-        scene = parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir))
+        case_key(case)
     except SceneError as exc:
         raise SceneError(path, key, f"case {case.id}: {exc}") from exc
-    case.key = scene_key(scene)
     return case
 
 
@@ -298,7 +293,7 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
     say = progress or (lambda s: None)
     stored = read_store(sweep.store)
     info = {"name": sweep.name, "file": str(sweep.file), "cases": [c.id for c in sweep.cases]}
-    keys = {c.id: c.key if c.key is not None else _case_key(c) for c in sweep.cases}
+    keys = {c.id: case_key(c) for c in sweep.cases}
     stale, gone = stale_cases(stored, keys)
     if stale or gone:
         _stale(sweep, stale, gone, recompute_stale)
@@ -373,12 +368,15 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
     return report
 
 
-def _case_key(case: Case) -> dict[str, Any]:
-    """The key of a case built without one (not through :func:`load_sweep`)."""
+def case_key(case: Case) -> dict[str, Any]:
+    """The case's key (:func:`stepnf.model_key.scene_key` of its scene): computed here only, once per case
+    (kept in ``case.key``; :func:`load_sweep` computes it while checking the case)."""
     from .model_key import scene_key
     from .scene import parse_scene
 
-    return scene_key(parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir)))
+    if case.key is None:
+        case.key = scene_key(parse_scene(case.data, file=Path(case.file), base_dir=Path(case.base_dir)))
+    return case.key
 
 
 def _stale(sweep: Sweep, stale: Mapping[str, str], gone: Mapping[str, str], recompute: bool) -> None:
@@ -390,6 +388,13 @@ def _stale(sweep: Sweep, stale: Mapping[str, str], gone: Mapping[str, str], reco
                          f"for another model (case {cid}: {why}); a store never mixes models: rerun with "
                          "--recompute-stale to compute them again (their stored results are replaced), or give "
                          "this sweep a new store ([sweep] name or [output] dir)")
-    removed = f"; {len(gone)} stale cases no longer in the sweep removed" if gone else ""
-    warnings.warn(f"{sweep.store}: {len(stale)} stored case{'s' * (len(stale) != 1)} computed for another model "
-                  f"(case {cid}: {why}) recomputed{removed}", StaleWarning, stacklevel=3)
+    said = []
+    if stale:
+        sid, swhy = next(iter(stale.items()))
+        said.append(f"{len(stale)} stored case{'s' * (len(stale) != 1)} computed for another model recomputed "
+                    f"(case {sid}: {swhy})")
+    if gone:
+        gid, gwhy = next(iter(gone.items()))
+        said.append(f"{len(gone)} stale case{'s' * (len(gone) != 1)} no longer in the sweep removed "
+                    f"(case {gid}: {gwhy})")
+    warnings.warn(f"{sweep.store}: {'; '.join(said)}", StaleWarning, stacklevel=3)

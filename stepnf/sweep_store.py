@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from .errors import StoreError
-from .model_key import content_sha256, describe_change, digest
+from .model_key import describe_change, digest, input_sha256
 
 STORE_FORMAT = "stepnf-sweep"
 STORE_FORMAT_VERSION = 1  # stores written before versions existed have the same layout
@@ -165,8 +165,11 @@ def stale_cases(stored: Mapping[str, Mapping[str, Any]], keys: Mapping[str, Mapp
         elif old is None:
             gone[cid] = describe_change(None, {})
         else:
-            changed = [f"{k} {f.get('path')} changed" for k, f in sorted((old.get("files") or {}).items())
-                       if _sha_now(f.get("path")) != f.get("sha256")]
+            try:
+                changed = [f"{k} {f.get('path')} changed" for k, f in sorted((old.get("files") or {}).items())
+                           if _sha_now(f.get("path")) != f.get("sha256")]
+            except (AttributeError, TypeError):  # a recorded key edited into another shape
+                changed = ["its recorded key is damaged (edited by hand?)"]
             if changed:
                 gone[cid] = "; ".join(changed)
     return stale, gone
@@ -182,7 +185,10 @@ def _inputs(rec: Mapping[str, Any]) -> dict[str, Any] | None:
 
 
 def _sha_now(path: Any) -> str | None:
+    """What the key would record now for a recorded input file or folder (:func:`stepnf.model_key.input_sha256`:
+    a device, a FIFO or a file under /proc, /sys, /dev an edited store names is never read); ``None`` for a
+    recorded path that is no path."""
     try:
-        return content_sha256(Path(path)) if Path(path).exists() else None
-    except (OSError, TypeError):
+        return input_sha256(Path(path))
+    except TypeError:
         return None

@@ -184,11 +184,14 @@ def default_amplitudes(bb: Any, limit: tuple[float | None, str], fractions: Sequ
                        tol: float = 1e-3, shift: float = 0.10) -> tuple[list[float], str]:
     """Amplitudes at ``fractions`` of the backbone's validity limit ``limit`` (``bb.validity_limit(tol)``).
 
-    Without a limit (not reached), of the amplitude where ``omega`` has moved by ``shift``.
+    Without a limit (not reached), of the amplitude where ``omega`` has moved by ``shift``; a limit of 0
+    (the backbone has no validity range: forces inaccurate, a flag) gives no amplitude, and says so.
     Returns ``(amplitudes, where the top one comes from)``.
     """
     A_max, why = limit
-    if A_max is None or A_max <= 0:
+    if A_max is not None and A_max <= 0:
+        return [], f"none: {no_range(why)}"
+    if A_max is None:
         w = bb.res.omega
         c1 = abs(bb.res.c[0]) if len(bb.res.c) else 0.0
         rho = 1e-3 * (w / c1) ** 0.5 if c1 > 0 else 1e-3  # Omega - w = c1 rho^2 starts at 1e-6 w
@@ -200,6 +203,11 @@ def default_amplitudes(bb: Any, limit: tuple[float | None, str], fractions: Sequ
     else:
         why = f"validity limit A = {A_max:.6g} ({why}, tol {tol:g})"
     return [A_max * f for f in fractions], why
+
+
+def no_range(why: str) -> str:
+    """The words for a backbone whose validity limit is 0 (``why``: its ``valid_reason``)."""
+    return f"the backbone has no validity range ({why}): no amplitude of it is trustworthy"
 
 
 def scene_amplitudes(spec: Any, limit: float | None) -> tuple[list[float], str]:
@@ -272,9 +280,12 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
             tol = getattr(spec, "tolerance", 1e-3)
             limit, why = _validity_limit(bb, blocks.get(p), tol)
             amps, src = (list(amplitudes), "--amplitudes") if amplitudes else scene_amplitudes(spec, limit)
-            if not amps:
-                amps, src = default_amplitudes(bb, (limit, why), fractions, tol)
+            if not amps:  # none listed, or every one beyond the limit (then said)
+                amps, dsrc = default_amplitudes(bb, (limit, why), fractions, tol)
+                src = dsrc + (f"; {src}" if src else "")
             if amplitudes:
+                if limit is not None and limit <= 0:
+                    raise SceneError(where, None, f"--amplitudes: {who}: {no_range(why)}")
                 if limit is not None and max(amps) > limit * (1 + 1e-9):
                     raise SceneError(where, None, f"--amplitudes {max(amps):.6g} is beyond the validity limit of "
                                      f"{who}, A = {limit:.6g} ({why}: orders {res.order - 2} and {res.order} "
@@ -386,6 +397,8 @@ def format_report(doc: dict) -> str:
                          f"{c['manifold_distance']:10.2e}")
         for f in m.get("failed", []):
             lines.append(f"  {f['amplitude']:12.6g}  no orbit: {f['error']}")
+        if not m["checks"] and not m.get("failed"):
+            lines.append("  no orbit checked (above: why)")
     lines.append("\nA: amplitude of q = phi^T M x measured on the orbit; w_DPIM at that A; distance: largest "
                  "relative energy-norm distance of the orbit from the parametrisation")
     return "\n".join(lines)

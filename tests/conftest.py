@@ -4,7 +4,10 @@ The tools ``bash scripts/setup.sh tests`` installs on this Debian release (``tes
 see ``tests/required.py``) are listed in the header of every run. A test marked ``requires(...)``
 fails when one of them is missing (skips where the release does not promise it, as ccx on Debian 13),
 and any other skip whose reason names a required tool that is missing (``importorskip``, an inline
-``pytest.skip``) is turned into a failure, at collection as at run time (issue 29).
+``pytest.skip``) is turned into a failure at run time (issue 29). A module skipped at collection for a
+missing required tool stays skipped, so that the other modules still run (a failed collection stops pytest:
+"Interrupted: 1 error during collection"), and the run fails at its end with a line naming the module and
+the tool.
 """
 import sys
 from pathlib import Path
@@ -61,7 +64,29 @@ def pytest_runtest_makereport(item, call):
     _fail_promised_skip(outcome.get_result())
 
 
+#: Per run: "module: message" for every module skipped at collection for a missing required tool.
+PROMISED_MODULES = pytest.StashKey[list]()
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_make_collect_report(collector):
     outcome = yield
-    _fail_promised_skip(outcome.get_result())
+    report = outcome.get_result()
+    if report.skipped:
+        tools = required.promised_in(_skip_reason(report))
+        if tools:
+            collector.config.stash.setdefault(PROMISED_MODULES, []).append(
+                f"{report.nodeid}: " + "; ".join(required.message(t) for t in tools)
+                + f" (the module's skip said: {_skip_reason(report)})")
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """A module skipped for a missing required tool fails the run (its tests did not run)."""
+    if session.config.stash.get(PROMISED_MODULES, None) and exitstatus in (
+            pytest.ExitCode.OK, pytest.ExitCode.NO_TESTS_COLLECTED):
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    for line in config.stash.get(PROMISED_MODULES, []):
+        terminalreporter.write_line(f"FAILED (module not run) {line}", red=True)

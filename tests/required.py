@@ -10,7 +10,8 @@ elsewhere (Debian 13's ccx, another system) the test is skipped with the reason.
   ``tests/conftest.py`` before the test runs;
 * ``need("mpirun")`` does the same from inside a test or fixture;
 * ``conftest.py`` also turns any other skip whose reason names a required tool that is missing
-  (``pytest.importorskip("dolfinx")``, an old ``skipif``) into a failure: :func:`promised_in`.
+  (``pytest.importorskip("dolfinx")``, an old ``skipif``) into a failure: :func:`promised_in`; a whole
+  module skipped so at collection stays skipped (the other modules run) and fails the run at its end.
 """
 from __future__ import annotations
 

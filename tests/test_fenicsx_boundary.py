@@ -260,8 +260,8 @@ def test_clamped_plate_coarse():
     assert np.hypot(*ad.dof_coordinates()[:, :2].T).max() < A * (1 - 1e-9)
     d = ad.describe()["boundary"]
     assert d["conditions"] == [{"set": "edge", "dofs": ["ux", "uy", "uz"], "nodes": len(rim)}]
-    # 3 681 free dofs, its rings graded 2 towards the held rim (stepnf.geometry.rim); measured +1.4%, +2.4%,
-    # +2.9%, +3.8% (equal rings: +1.3%, +2.2%, +2.1%, +4.0%; the default mesh: below 0.2%, test_held_rim.py)
+    # 3 681 free dofs, equal rings (n_ring given: the held rim's defaults do not apply, stepnf.geometry.rim);
+    # measured +1.30%, +2.21%, +3.11%, +4.02% (the default mesh, 8 rings graded 2: below 0.2%, test_held_rim.py)
     assert_clamped_plate(ad, 0.05)
 
 
@@ -269,17 +269,17 @@ def test_clamped_plate_tet10_keeps_the_edge_set():
     ad = FenicsxAdapter.cap(A, math.inf, H, **MAT, n_core=6, n_ring=3, element="tet10", boundary=CLAMPED)
     # the vertices of the rim (72) and the mid-edge dofs between them: 240 dof nodes
     assert ad.describe()["boundary"]["n_fixed"] == 720
-    assert_clamped_plate(ad, 0.06)  # straight P2 tetrahedra, 13 257 dofs: measured +2.5% .. +4.5%
+    assert_clamped_plate(ad, 0.06)  # straight P2 tetrahedra, 13 257 dofs: measured +2.6% .. +4.4%
 
 
 @pytest.mark.slow
 def test_clamped_plate_frequencies():
-    """3D solid, 27-node hexahedra, 12 x 10 O-grid (rings graded 2: the held rim's default), one layer
+    """3D solid, 27-node hexahedra, 12 x 10 O-grid (equal rings: a scene's n_ring is kept), one layer
     (22 041 free dofs), a / h = 50."""
     ad = FenicsxAdapter.cap(A, math.inf, H, **MAT, n_core=12, n_ring=10, boundary=CLAMPED)
     errors = assert_clamped_plate(ad, 5e-3)
-    # measured +0.13%, +0.10%, +0.09%, +0.12% (equal rings: +0.18%, +0.15%, +0.15%, +0.18%; 14 x 5 equal
-    # rings, the free rim's default: up to +0.75%)
+    # measured +0.18%, +0.15%, +0.15%, +0.18% (14 x 5 equal rings: up to +0.75%; 20 x 8: +0.20% at most;
+    # the held rim's default, 14 x 8 graded 2: below 0.2%, test_held_rim.py)
     assert np.all(np.abs(errors) <= 2.5e-3), errors
 
 
@@ -356,9 +356,8 @@ methods = ["nf"]
 @pytest.mark.parametrize("kappa", [0.0, 10.0])
 def test_clamped_gamma_against_von_karman(tmp_path, kappa):
     """Gamma of the first three modes, FE (shallow shell, 3D solid) against the clamped-edge von Karman
-    model (the issue: within 2%). Measured, shell / 3D (12 x 10, rings graded 2 by the held rim): kappa = 0:
-    -0.001%, -0.002%, -0.004% / -0.11%, +0.17%, -0.07%; kappa = 10: -0.003%, +0.003%, +0.09% / -0.24%,
-    +0.99%, +0.73% (equal rings: -0.09%, +0.20%, -0.04%; -0.28%, +1.41%, +0.93%)."""
+    model (the issue: within 2%). Measured, shell / 3D: kappa = 0: -0.001%, -0.002%, -0.004% / -0.09%,
+    +0.20%, -0.04%; kappa = 10: -0.003%, +0.003%, +0.09% / -0.28%, +1.41%, +0.93%."""
     masters = ("(0,1)", "(1,1)", "(2,1)")
     R = '"inf"' if kappa == 0 else repr(A**2 / (math.sqrt(kappa) * H))
     vk = tmp_path / "vk.toml"

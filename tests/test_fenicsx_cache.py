@@ -282,3 +282,11 @@ def test_stepnf_cache_dir_writable_by_others_is_an_error(env, monkeypatch):
     monkeypatch.setenv("STEPNF_CACHE_DIR", str(env / "mine"))
     with pytest.raises(OutputError, match=r"STEPNF_CACHE_DIR=.*writable by others \(mode 0777\)"):
         _compat.cache_dir()
+
+
+def test_the_cache_and_the_checkpoint_share_one_private_folder_helper():
+    """Review item 5: one definition of "the user's alone" (0700, owner, not writable by others), in stepnf.atomic."""
+    from stepnf import atomic
+
+    assert jitcache.private_folder is atomic.private_folder
+    assert not hasattr(jitcache, "unsafe_reason") and not hasattr(jitcache, "_make_private")

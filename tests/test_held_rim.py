@@ -4,7 +4,9 @@ References independent of the FE model: Leissa's clamped circular plate (Kirchho
 w_bar = w a^2 sqrt(rho h / D) = 10.2158, 21.260, 34.877, 39.771 for its modes (0,1), (1,1), (2,1),
 (0,2), the edge counted as a nodal circle) and the simply supported one (4.935, 13.898, 25.613,
 29.720), as in tests/test_fenicsx_boundary.py. The FEniCSx tests skip only where dolfinx is absent
-(not on the Debian 12 set-up, which installs it).
+(not on the Debian 12 set-up, which installs it). The calculix and code_aster caps take the same defaults
+(:func:`stepnf.geometry.rim.cap_for_conditions`): code_aster's mesh is checked at the end of this file
+(code_aster itself cannot run here), the clamped plate through ccx in tests/test_calculix_boundary.py.
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ from stepnf.geometry import jacobians, shell_volume, spherical_cap, volume
 from stepnf.geometry.cap import DEFAULT_N_RING, disk_quad9, graded_nodes
 from stepnf.geometry.hexahedra import gauss_points
 from stepnf.geometry.keys import cap_resolution
-from stepnf.geometry.rim import HELD_GRADING, HELD_N_RING, rim_is_held, rim_resolution
+from stepnf.geometry.rim import HELD_GRADING, HELD_N_RING, cap_for_conditions, rim_is_held, rim_resolution
 
 A, H = 0.15, 0.003  # a / h = 50
 MAT = {"E": 1.04e11, "nu": 0.3, "rho": 4400.0}
@@ -92,7 +94,21 @@ def test_rim_resolution():
     assert rim_resolution({}, held=False) == {}
     assert rim_resolution({"n_core": 6}, held=True) == {"n_core": 6, "n_ring": HELD_N_RING, "grading": HELD_GRADING}
     assert rim_resolution({"n_ring": 3, "grading": 1.0}, held=True) == {"n_ring": 3, "grading": 1.0}
+    # a scene that pins the rings (n_ring, grading or both) keeps its mesh: no grading slipped in
+    assert rim_resolution({"n_core": 6, "n_ring": 4}, held=True) == {"n_core": 6, "n_ring": 4}
+    assert rim_resolution({"grading": 3.0}, held=True) == {"grading": 3.0}
     assert HELD_N_RING > DEFAULT_N_RING
+
+
+@pytest.mark.parametrize("element", ["hex27", "hex20"])
+def test_pinned_rings_keep_their_mesh_on_a_held_rim(element):
+    """Review item 3: a clamped cap whose scene gives ``n_ring`` is the generator's mesh for that
+    resolution node for node (equal rings, as before issue 29), so its figures do not move."""
+    given = {"n_core": 6, "n_ring": 4, "n_thick": 1}
+    mesh, full = cap_for_conditions(A, math.inf, H, conditions(CLAMPED), element=element, **given)
+    ref = spherical_cap(A, math.inf, H, element=element, **given)
+    assert full == given and "grading" not in mesh.info and mesh.info == ref.info
+    assert np.array_equal(mesh.points, ref.points) and np.array_equal(mesh.cells, ref.cells)
 
 
 # ------------------------------------------------------------------ the FE plates (FEniCSx)
@@ -151,7 +167,8 @@ def test_free_rim_and_given_resolution_keep_their_mesh():
     # a scene that gives the resolution gets it, held rim or not
     given = plate(CLAMPED, n_ring=5, grading=1.0)
     assert np.array_equal(given.mesh.points, ref.points) and given.mesh.info["n_ring"] == 5
-    assert plate(CLAMPED, n_ring=3).mesh.info["n_ring"] == 3
+    pinned = plate(CLAMPED, n_ring=3).mesh.info
+    assert pinned["n_ring"] == 3 and "grading" not in pinned  # review item 3: no grading slipped in
 
 
 @pytest.mark.fenicsx
@@ -186,3 +203,47 @@ def test_held_rim_mesh_converges():
     limit = w[-1] + (w[-1] - w[-2]) / (2.0 ** rates - 1)  # Richardson, the observed order
     errors = limit / CLAMPED_WBAR - 1  # measured -0.03%, -0.12%, -0.24%, -0.26%
     assert np.all(np.abs(errors) <= 5e-3), errors
+
+
+# ------------------------------------------------------------------ code_aster's generated cap (no code_aster)
+def test_code_aster_cap_refines_a_held_rim(tmp_path):
+    """code_aster shares the calculix path (:func:`stepnf.external.keys.build_solid`; the clamped plate
+    through ccx is in tests/test_calculix_boundary.py). code_aster itself cannot run here: the mesh it
+    would read, the model.med the adapter writes, holds the held-rim cap's nodes, and the free cap's
+    are the generator's defaults as before."""
+    ca = pytest.importorskip("stepnf_code_aster")
+    from stepnf_code_aster.med import read_mesh_nodes
+
+    def med_nodes(boundary, name):
+        cfg = {"geometry": {"shape": "spherical_cap", "a": A, "R": 1.5, "h": H, "n_core": 2},
+               "material": dict(MAT), "workdir": "runs", **({"boundary": boundary} if boundary else {})}
+        ad = ca.CodeAsterAdapter.from_config(cfg, base_dir=tmp_path, scene_file=tmp_path / "s.toml")
+        wd = tmp_path / name
+        wd.mkdir()
+        ad.render_job(wd, "matrices")
+        ad._write_model(wd)  # what a run writes next to the command file (the export's mmed)
+        assert f"F mmed {wd / 'model.med'} D 20" in (wd / "matrices.export").read_text()
+        return ad, read_mesh_nodes(wd / "model.med")
+
+    held, X = med_nodes(CLAMPED, "held")
+    ref = spherical_cap(A, 1.5, H, element="hex20", n_core=2, n_ring=HELD_N_RING, grading=HELD_GRADING)
+    assert held.geometry["n_ring"] == HELD_N_RING and held.geometry["grading"] == HELD_GRADING
+    assert X.shape == ref.points.shape and np.allclose(X, ref.points, rtol=0, atol=1e-15)
+    assert held.n_dofs == 3 * (len(X) - len(ref.node_sets["edge"]))
+    free, X = med_nodes([], "free")
+    ref = spherical_cap(A, 1.5, H, element="hex20", n_core=2)
+    assert X.shape == ref.points.shape and np.allclose(X, ref.points, rtol=0, atol=1e-15)
+    assert "grading" not in free.geometry
+
+
+def test_dof_bound_counts_a_held_rims_rings():
+    """The 2M-dof bound of a generated cap is checked before the conditions are applied, so rings not given
+    count as a held rim's (8, not the free rim's 5; a QA round found n_core = 225 clamped passing the bound
+    at 5 rings, 1 992 609 dofs, and then meshed with 8: 2 089 809). Given rings keep their own count."""
+    from stepnf.errors import SceneError
+    from stepnf.geometry.keys import MAX_CAP_DOFS, cap_dofs, cap_resolution
+
+    assert cap_dofs(225, 5, 1) <= MAX_CAP_DOFS < cap_dofs(225, 8, 1)
+    with pytest.raises(SceneError, match="n_core"):
+        cap_resolution({"n_core": 225}, "s.toml")
+    assert cap_resolution({"n_core": 225, "n_ring": 5}, "s.toml") == {"n_core": 225, "n_ring": 5}

@@ -88,6 +88,36 @@ def test_writer_refuses_a_linked_private_folder(tmp_path):
     assert (tmp_path / ".t.partial" / "c.npz").read_bytes() == b"chunk"
 
 
+def test_writer_makes_a_private_folder_0700_whatever_the_umask(tmp_path):
+    """Review item 5: the checkpoint folder was created with the umask (0777 under umask 000)."""
+    old = os.umask(0)
+    try:
+        atomic.write_bytes(tmp_path / ".s.partial" / "c.npz", b"chunk", private_folder=True)
+    finally:
+        os.umask(old)
+    assert (tmp_path / ".s.partial").stat().st_mode & 0o777 == 0o700
+
+
+@pytest.mark.parametrize("bits", [0o777, 0o775, 0o703], ids=["0777", "0775", "0703"])
+def test_writer_refuses_a_private_folder_others_can_write(tmp_path, bits):
+    """A private folder found writable by group or others (someone may have planted files) is not written."""
+    (tmp_path / ".s.partial").mkdir()
+    (tmp_path / ".s.partial").chmod(bits)
+    with pytest.raises(OutputError, match=rf"\.s\.partial is writable by others \(mode {bits:04o}\)"):
+        atomic.write_bytes(tmp_path / ".s.partial" / "c.npz", b"chunk", what="checkpoint chunk",
+                           private_folder=True)
+    assert list((tmp_path / ".s.partial").iterdir()) == []
+
+
+def test_writer_refuses_a_private_folder_of_another_user(tmp_path, monkeypatch):
+    (tmp_path / ".s.partial").mkdir(mode=0o700)
+    owner = (tmp_path / ".s.partial").stat().st_uid
+    monkeypatch.setattr(os, "geteuid", lambda: owner + 1)
+    with pytest.raises(OutputError, match=rf"\.s\.partial belongs to another user \(uid {owner}\)"):
+        atomic.write_bytes(tmp_path / ".s.partial" / "c.npz", b"chunk", private_folder=True)
+    assert list((tmp_path / ".s.partial").iterdir()) == []
+
+
 def test_linked_output_folder_is_the_users_choice(tmp_path, capsys):
     """The output folder itself may be a link (results on another disk): written into its target."""
     s = scene(tmp_path)

@@ -179,15 +179,184 @@ def test_code_aster_templates_refused_then_run(tmp_path, elsewhere, capsys, monk
 @pytest.mark.parametrize("key, value", [
     ("mesh_name", 'x")\\nimport os\\nos.system("touch /tmp/pwned")\\n#'),  # Python into the command files
     ("version", "stable\\nF comm /tmp/evil.comm D 1"),  # a line into the .export file
+    ("workdir", 'w");__import__("os").system("touch PWNED");print("'),  # Python into np.savez("...") (review 1)
+    ("workdir", "evil.comm D 1 x"),  # spaces split the .export's F lines: code_aster would read evil.comm
 ])
-def test_code_aster_values_cannot_inject_code(tmp_path, key, value):
+def test_code_aster_values_cannot_inject_code(tmp_path, monkeypatch, key, value):
     from stepnf_code_aster import CodeAsterAdapter
     from stepnf.geometry import spherical_cap
 
+    monkeypatch.chdir(tmp_path)  # a relative workdir lands here (refused before any folder is made)
     mesh = spherical_cap(0.15, 1.5, 0.003, element="hex20", n_core=2, n_ring=1)
     with pytest.raises(ValueError, match=key):
         CodeAsterAdapter.from_volume_mesh(mesh, material={"E": 1.0, "nu": 0.3, "rho": 1.0},
                                           **{key: value.encode().decode("unicode_escape")})
+    assert not (tmp_path / "PWNED").exists()
+
+
+def test_code_aster_temporary_folder_with_a_space_is_refused(tmp_path, monkeypatch):
+    """No workdir: the work folders go to the temporary folder (TMPDIR), whose path the .export file holds too."""
+    from stepnf_code_aster import CodeAsterAdapter
+    from stepnf.geometry import spherical_cap
+
+    import tempfile
+
+    spaced = tmp_path / "my temp"
+    spaced.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(spaced))
+    mesh = spherical_cap(0.15, 1.5, 0.003, element="hex20", n_core=2, n_ring=1)
+    with pytest.raises(ValueError, match="TMPDIR") as ei:
+        CodeAsterAdapter.from_volume_mesh(mesh, material={"E": 1.0, "nu": 0.3, "rho": 1.0})
+    assert str(spaced) in str(ei.value) and "workdir" in str(ei.value)
+
+
+def test_code_aster_workdir_with_a_space_names_the_key(tmp_path, elsewhere, capsys):
+    s = code_aster_scene(tmp_path / "scene", 'workdir = "evil.comm D 1 x"\n')
+    o = run_cli(["modes", s, "-q"], capsys)
+    assert_reported(o, codes=(2,), mentions=[str(s), "[model.workdir]", "evil.comm D 1 x", "no space, quote"])
+
+
+def test_code_aster_work_folder_checked_where_it_is_written(tmp_path):
+    """The folder a job is rendered into is checked again (the .export file names its files)."""
+    from stepnf.errors import SolverRunError
+    from stepnf_code_aster import CodeAsterAdapter
+    from stepnf.geometry import spherical_cap
+
+    mesh = spherical_cap(0.15, 1.5, 0.003, element="hex20", n_core=2, n_ring=1)
+    ad = CodeAsterAdapter.from_volume_mesh(mesh, material={"E": 1.0, "nu": 0.3, "rho": 1.0}, workdir=tmp_path)
+    wd = tmp_path / 'x" D 1'
+    wd.mkdir()
+    with pytest.raises(SolverRunError, match="work folder"):
+        ad.render_job(wd, "matrices")
+    assert list(wd.iterdir()) == []  # nothing written
+
+
+def test_code_aster_paths_are_python_literals_in_the_command_files(tmp_path, monkeypatch):
+    """Second line of defence: with the folder check switched off, the payload of review item 1 stays a string
+    in matrices.comm (the shipped templates hold repr()-rendered values, not "${...}")."""
+    import ast
+
+    import stepnf_code_aster.adapter as ca_adapter
+    from stepnf_code_aster import CodeAsterAdapter
+    from stepnf.geometry import spherical_cap
+
+    monkeypatch.setattr(ca_adapter, "export_folder_problem", lambda folder: "")
+    mesh = spherical_cap(0.15, 1.5, 0.003, element="hex20", n_core=2, n_ring=1)
+    ad = CodeAsterAdapter.from_volume_mesh(mesh, material={"E": 1.0, "nu": 0.3, "rho": 1.0})
+    wd = tmp_path / 'w");__import__("os").system("touch PWNED");print("'
+    wd.mkdir()
+    ad.render_job(wd, "matrices")
+    tree = ast.parse((wd / "matrices.comm").read_text())
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+    assert "__import__" not in names
+    (savez,) = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and getattr(n.func, "attr", "") == "savez"]
+    assert savez.args[0].value == str(wd / "matrices.npz")
+
+
+@pytest.mark.parametrize("name", ['it\'s "odd" \\ name\n', "plain", "caf\u00e9\u2028x"])
+def test_python_string_literals_read_back(name):
+    """The values written into code_aster's command files are Python string literals of exactly the value."""
+    import ast
+
+    from stepnf_code_aster.adapter import python_str
+
+    text = python_str(name)
+    assert ast.literal_eval(text) == name and "\n" not in text
+    assert text.startswith('"') or '"' in name  # as the shipped templates were written (GROUP_MA="CORE")
+
+
+def test_code_aster_default_command_written_out_needs_no_permission(tmp_path, elsewhere):
+    """The documented default command, written out in a scene, names no program of the scene's (review 2)."""
+    from stepnf.registry import build_model
+    from stepnf.scene import load_scene
+    from stepnf_code_aster.adapter import DEFAULT_COMMAND
+
+    s = code_aster_scene(tmp_path / "scene", f'command = "{DEFAULT_COMMAND}"\nversion = "stable"\n')
+    model = build_model(load_scene(s))
+    assert model.program_named_by is None and model.command.text == DEFAULT_COMMAND
+
+
+def test_stepnf_check_on_a_code_aster_scene(tmp_path, elsewhere, capsys, monkeypatch):
+    """`stepnf check` builds the model again with the documented defaults filled in (check_from_config),
+    among them command = "run_aster ${export}": no permission is needed for it (review 2). run_aster is
+    test_code_aster's fake (f = K u + u^3, M = I)."""
+    from test_code_aster import FAKE_RUN_ASTER
+
+    bindir = tmp_path / "bin"
+    script(bindir / "run_aster", FAKE_RUN_ASTER.format(python=sys.executable))
+    monkeypatch.setenv("PATH", f"{bindir}{os.pathsep}{os.environ['PATH']}")
+    o = run_cli(["check", code_aster_scene(tmp_path / "scene", "")], capsys)
+    assert "allow-programs" not in o.out + o.err, o.out + o.err
+    assert ["passed", "from_config"] in [x.split() for x in o.out.splitlines()], o.out
+    assert o.code == 0, o.out + o.err  # every check passed on the fake (f = K u + u^3 is conservative)
+
+
+def test_code_aster_missing_hint_names_the_permission(tmp_path, elsewhere, capsys, monkeypatch):
+    """The hint for a missing run_aster proposes a docker command: a command the scene names, so it says
+    that this needs --allow-programs (review N9)."""
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    o = run_cli(["modes", code_aster_scene(tmp_path / "scene", ""), "-q"], capsys)
+    assert_reported(o, codes=(3,), mentions=["'run_aster' not found", "docker run", "--allow-programs"])
+
+
+@pytest.mark.parametrize("entry", [".", "", "scene"])
+def test_default_program_ignores_relative_path_entries(tmp_path, elsewhere, capsys, monkeypatch, entry):
+    """PATH holding ".", an empty entry (the current folder too) or a relative folder: a ccx found
+    through it is not run, the absolute entries are searched (review N10)."""
+    script(elsewhere / "ccx", '#!/bin/sh\ntouch "$(dirname "$0")/WRONG_MARKER"\nexit 7\n')
+    script(elsewhere / "scene" / "ccx", '#!/bin/sh\ntouch "$(dirname "$0")/WRONG_MARKER"\nexit 7\n')
+    bindir = tmp_path / "bin"
+    script(bindir / "ccx")
+    monkeypatch.setenv("PATH", os.pathsep.join([entry, str(bindir), "/usr/bin", "/bin"]))  # the script needs touch
+    o = run_cli(["modes", calculix_scene(tmp_path / "scene", extra=""), "-q"], capsys)
+    assert_reported(o, codes=(3,), mentions=["exited with code 7", str(bindir / "ccx")])
+    assert (bindir / "MARKER").exists()
+    assert not (elsewhere / "WRONG_MARKER").exists() and not (elsewhere / "scene" / "WRONG_MARKER").exists()
+
+
+def test_only_a_relative_path_entry_finds_nothing(tmp_path, elsewhere, capsys, monkeypatch):
+    script(elsewhere / "ccx", '#!/bin/sh\ntouch "$(dirname "$0")/WRONG_MARKER"\nexit 7\n')
+    monkeypatch.setenv("PATH", ".")
+    o = run_cli(["modes", calculix_scene(tmp_path / "scene", extra=""), "-q"], capsys)
+    assert_reported(o, codes=(3,), mentions=["'ccx' not found"])
+    assert not (elsewhere / "WRONG_MARKER").exists()
+
+
+def test_program_notice_printed_once_before_every_parallel_run(tmp_path, monkeypatch):
+    """parallel_runs > 1: the runs wait for the one notice of the program the scene named (review 10)."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import stepnf.external.adapter as ext
+    import stepnf.programs as programs
+    from stepnf.external.process import RunRecord
+
+    events: list[tuple[str, float]] = []
+    lock = threading.Lock()
+
+    def slow_announce(argv, why):
+        with lock:
+            events.append(("announce", time.monotonic()))
+        time.sleep(0.3)  # a slow terminal: the notice is still being written
+        with lock:
+            events.append(("announced", time.monotonic()))
+
+    def fake_run(argv, *, cwd, **kw):
+        with lock:
+            events.append(("run", time.monotonic()))
+        return RunRecord(tuple(argv), Path(cwd), Path(cwd) / "log", 0.0)
+
+    monkeypatch.setattr(programs, "announce", slow_announce)
+    monkeypatch.setattr(ext, "run_command", fake_run)
+    ad = ext.ExternalSolverAdapter(executable="/bin/true", parallel_runs=4)
+    ad.program_named_by = "[model] executable of s.toml"
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        list(pool.map(lambda i: ad.run(["x", str(i)], tmp_path), range(4)))
+    kinds = [k for k, _ in events]
+    assert kinds.count("announce") == 1 and kinds.count("run") == 4, kinds
+    done = dict(events)["announced"]
+    assert all(t >= done for k, t in events if k == "run"), kinds
 
 
 # ------------------------------------------------------------------ sweeps

@@ -209,3 +209,132 @@ def test_a_checkpoint_whose_forces_the_solver_no_longer_gives_is_not_reused(tmp_
     for a, b in zip(doc["modes"], fresh["modes"]):
         for m in ("nf", "dnf"):
             assert a["methods"][m]["T"] == pytest.approx(b["methods"][m]["T"], rel=1e-12)
+
+
+def test_a_reduced_chunk_of_another_width_is_recomputed(tmp_path, monkeypatch, capsys):
+    """Review item 7: with 32 or more retained modes the first full-plan chunk (64 fields: +-v_0 .. +-v_31) asks
+    for the same fields whatever retained_modes is, but keeps their projections on every retained mode (one
+    column per mode, plus one). Killed with 34 modes and rerun with 33, the stored 35-column rows are not
+    these projections: recomputed (was a broadcast ValueError, exit 1), numbers of a fresh run."""
+    use_solver(monkeypatch, lambda name: Crashing)
+
+    def scene(folder, retained):
+        M, K, G, H = random_system(34, seed=3)
+        save_system(folder / "s.npz", M, K, G, H)
+        (folder / "s.toml").write_text(
+            '[model]\nsolver = "crashing"\nfile = "s.npz"\n[analysis]\nmaster_modes = [0]\nmethods = ["nf"]\n'
+            f'retained_modes = {retained}\ntensors = "full"\n[output]\ndir = "out"\n')
+        return folder / "s.toml"
+
+    (tmp_path / "ref").mkdir()
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, fresh, err = run_json(capsys, scene(tmp_path / "ref", 33))
+    assert code == 0, err
+    work = tmp_path / "work"
+    work.mkdir()
+    Crashing.budget, Crashing.seen = 70, 0
+    assert run_json(capsys, scene(work, 34))[0] == 3  # killed: the first full-plan chunk (64 fields) stored
+    assert len(list((work / "out" / ".s.partial").glob("full*.npz"))) == 1
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, doc, err = run_json(capsys, scene(work, 33))
+    assert code == 0, err
+    assert doc["counts"]["force_evaluations_reused"] == 0
+    assert doc["counts"]["force_evaluations"] == fresh["counts"]["force_evaluations"]
+    # the same fields and arithmetic as the fresh run: the same numbers to round-off
+    assert doc["modes"][0]["methods"]["nf"]["T"] == pytest.approx(fresh["modes"][0]["methods"]["nf"]["T"], rel=1e-12)
+
+
+# ---------------------------------------------------------------- the checkpoint folder is private (review item 5)
+@pytest.fixture
+def umask000():
+    import os
+
+    old = os.umask(0)
+    yield
+    os.umask(old)
+
+
+def killed_once(folder, monkeypatch, capsys):
+    """A scene killed after 80 fields: its checkpoint (two chunks, 72 fields) is left in out/.s.partial."""
+    use_solver(monkeypatch, lambda name: Crashing)
+    toml = write_scene(folder)
+    Crashing.budget, Crashing.seen = 80, 0
+    assert run_json(capsys, toml)[0] == 3
+    Crashing.budget, Crashing.seen = 10**9, 0
+    return toml, folder / "out" / ".s.partial"
+
+
+def forge(partial):
+    """Another user's forces in the stored chunks: the results scaled, fingerprints and probe forces kept."""
+    import numpy as np
+
+    for f in partial.glob("*.npz"):
+        with np.load(f) as z:
+            arrays = dict(z)
+        arrays["result"] = 1.5 * arrays["result"]
+        with open(f, "wb") as out:
+            np.savez(out, **arrays)
+
+
+def test_the_checkpoint_folder_is_made_0700_whatever_the_umask(tmp_path, monkeypatch, capsys, umask000):
+    """It holds forces a rerun trusts: no one else may write (or read) it, even under umask 000."""
+    _, partial = killed_once(tmp_path, monkeypatch, capsys)
+    assert partial.stat().st_mode & 0o777 == 0o700
+
+
+@pytest.mark.parametrize("bits", [0o777, 0o770, 0o702], ids=["0777", "0770", "0702"])
+def test_a_checkpoint_folder_writable_by_others_is_dropped(tmp_path, monkeypatch, capsys, bits):
+    """Someone who could write into it may have put forged forces there (with a matching model key, and the
+    probe forces of a real run): dropped with a warning naming it, the run gives a fresh run's numbers."""
+    (tmp_path / "ref").mkdir()
+    use_solver(monkeypatch, lambda name: Crashing)
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, fresh, _ = run_json(capsys, write_scene(tmp_path / "ref"))
+    toml, partial = killed_once(tmp_path, monkeypatch, capsys)
+    forge(partial)
+    partial.chmod(bits)
+    code, doc, err = run_json(capsys, toml)
+    assert code == 0, err
+    assert str(partial) in err and f"writable by others (mode {bits:04o})" in err and "not reused" in err
+    assert doc["counts"]["force_evaluations_reused"] == 0
+    for a, b in zip(doc["modes"], fresh["modes"]):
+        for m in ("nf", "dnf"):
+            assert a["methods"][m]["T"] == pytest.approx(b["methods"][m]["T"], rel=1e-12)  # same arithmetic
+    assert not partial.exists()
+
+
+def test_a_checkpoint_folder_of_another_user_is_not_used(tmp_path, monkeypatch, capsys):
+    """A folder another user made where stepnf keeps its checkpoint is neither trusted nor removed: the run
+    goes on without checkpoints, with one warning naming it and its owner."""
+    import os
+
+    (tmp_path / "ref").mkdir()
+    use_solver(monkeypatch, lambda name: Crashing)
+    Crashing.budget, Crashing.seen = 10**9, 0
+    code, fresh, _ = run_json(capsys, write_scene(tmp_path / "ref"))
+    toml, partial = killed_once(tmp_path, monkeypatch, capsys)
+    forge(partial)
+    owner = partial.stat().st_uid
+    monkeypatch.setattr(os, "geteuid", lambda: owner + 1)  # the folder is now someone else's
+    code, doc, err = run_json(capsys, toml)
+    assert code == 0, err
+    assert str(partial) in err and f"belongs to another user (uid {owner})" in err and "checkpoint" in err
+    assert err.count("warning") == 1
+    assert doc["counts"]["force_evaluations_reused"] == 0
+    for a, b in zip(doc["modes"], fresh["modes"]):
+        for m in ("nf", "dnf"):
+            assert a["methods"][m]["T"] == pytest.approx(b["methods"][m]["T"], rel=1e-12)
+    assert len(list(partial.glob("*.npz"))) == 2  # theirs: left alone
+
+
+def test_the_checkpoint_keeps_its_key_as_the_one_canonical_json(tmp_path, monkeypatch, capsys):
+    """Review N1: model_key.json is stepnf.model_key.dumps of the key (one canonical JSON, no copy of it)."""
+    import json
+
+    from stepnf import checkpoint
+    from stepnf.model_key import dumps
+
+    _, partial = killed_once(tmp_path, monkeypatch, capsys)
+    text = (partial / checkpoint.KEY_FILE).read_text(encoding="utf-8")
+    assert text == dumps(json.loads(text))
+    assert not hasattr(checkpoint, "_canonical")

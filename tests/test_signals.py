@@ -135,6 +135,66 @@ def test_an_ignored_sighup_stays_ignored(tmp_path):
     assert res.stdout.strip() == "ok", res.stderr
 
 
+def test_a_signal_while_the_solver_starts_stops_it_once_tracked(tmp_path, monkeypatch):
+    """Review item 8: a SIGTERM between ``Popen`` returning and :func:`stepnf.signals.track` (sent here from
+    inside Popen, right after the child started) used to raise in between and leave the child running in its
+    own session. Now the handler holds the Interrupted back until the child is tracked: the child is killed
+    (SIGKILL: return code -9), nothing stays registered, and the thread's signal mask is the one it had."""
+    from stepnf import signals
+    from stepnf.external import process
+
+    real, started = subprocess.Popen, []
+
+    def popen(*args, **kwargs):
+        started.append(real(*args, **kwargs))
+        os.kill(os.getpid(), signal.SIGTERM)  # the handler runs before this returns
+        return started[-1]
+
+    monkeypatch.setattr(process.subprocess, "Popen", popen)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    try:
+        with signals.handled(), pytest.raises(signals.Interrupted) as info:
+            process.run_command(["sleep", "300"], cwd=tmp_path)
+        assert info.value.signum == signal.SIGTERM
+        assert started and started[0].wait(timeout=30) == -signal.SIGKILL  # tracked, then killed
+        assert signals._groups == {} and signals.received() is None
+        assert signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
+    finally:
+        for proc in started:  # no sleeper left behind when the test fails
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+
+
+def test_a_signal_while_a_solver_fails_to_start_is_not_lost(tmp_path, monkeypatch):
+    """The signal held back while the solver starts (stepnf.signals.deferred) still stops the run when the
+    start fails (an OSError: the SolverRunError "could not start" would otherwise hide it, and a sweep go on)."""
+    from stepnf import signals
+    from stepnf.external import process
+
+    def popen(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise OSError("no such file")
+
+    monkeypatch.setattr(process.subprocess, "Popen", popen)
+    with signals.handled(), pytest.raises(signals.Interrupted) as info:
+        process.run_command(["sleep", "300"], cwd=tmp_path)
+    assert info.value.signum == signal.SIGTERM and signals._groups == {}
+
+
+def test_the_solver_starts_with_the_handled_signals_unblocked(tmp_path):
+    """The child inherits no blocked SIGINT, SIGTERM or SIGHUP from the start (why stepnf.signals.deferred
+    does not use signal.pthread_sigmask): /proc/self/status of the solver, read by the solver itself."""
+    from stepnf import signals
+    from stepnf.external.process import run_command
+
+    with signals.handled():
+        run = run_command(["grep", "SigBlk", "/proc/self/status"], cwd=tmp_path)
+    blocked = int(run.log.read_text().split()[1], 16)
+    for name in signals.HANDLED:
+        assert not blocked & (1 << (getattr(signal, name) - 1)), (name, hex(blocked))
+
+
 def group_members(pgid: int) -> list[int]:
     """Live processes of the process group ``pgid`` (from /proc)."""
     out = []

@@ -114,3 +114,36 @@ def test_a_store_of_an_earlier_stepnf_is_refused(tmp_path, capsys):
     assert main(["sweep", str(sweep), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert str(store) in err and "earlier stepnf" in err and "--recompute-stale" in err
+
+
+def test_a_stored_case_naming_a_system_file_is_stale_and_nothing_is_read(tmp_path, monkeypatch):
+    """Review N4: the recorded input paths of a store (which anyone could edit) are checked through the key's
+    own rule: /proc/kcore-like files (regular, huge), devices and FIFOs are never read, the case is stale."""
+    import json
+    import os
+
+    from stepnf import model_key
+    from stepnf.sweep_store import stale_cases
+
+    read = []
+    monkeypatch.setattr(model_key, "file_sha256", lambda p: read.append(p) or "x")
+    os.mkfifo(tmp_path / "fifo")
+    for path in ("/proc/self/status", "/dev/zero", str(tmp_path / "fifo")):
+        rec = {"key": "0" * 64, "inputs": json.dumps({"key_version": 1, "files": {
+            "model.file": {"path": path, "sha256": "x"}}})}
+        stale, gone = stale_cases({"old": rec}, {})
+        assert gone == {"old": f"model.file {path} changed"} and not stale
+    assert read == []
+
+
+def test_the_key_of_a_case_is_computed_in_one_place_once(tmp_path, monkeypatch):
+    """Review N2: load_sweep computes each case's key (sweep.case_key) and the run reuses it, never again."""
+    from stepnf import model_key, sweep
+
+    write_model(tmp_path / "s.npz")
+    calls = []
+    real = model_key.scene_key
+    monkeypatch.setattr(model_key, "scene_key", lambda scene: calls.append(scene) or real(scene))
+    sw = load_sweep(write_sweep(tmp_path))
+    assert len(calls) == 2 and all(c.key is not None for c in sw.cases)
+    assert [sweep.case_key(c) for c in sw.cases] == [c.key for c in sw.cases] and len(calls) == 2

@@ -37,3 +37,29 @@ def test_scene_method_tangent(tmp_path, capsys):
     p.write_text(p.read_text().replace('method = "tangent"', 'method = "secant"'))
     assert main(["run", str(p), "-q"]) == 2
     assert "analysis.step.method" in capsys.readouterr().err
+
+
+def test_tangent_h_is_bit_for_bit_the_old_expression():
+    """h of the tangent route is ``float(phi @ ((K_T(+a) + K_T(-a) - 2K) @ phi)) / (6 a^2)`` to the last bit, as
+    before H(phi, phi, phi) was kept (issue 29): scaling the vector first moved the last bits, hence the
+    CalculiX method="tangent" results. Exact equality: the same operations in the same order."""
+    from stepnf.adapter import checked_matrix
+
+    M, K, G, H = random_system(12, seed=7)
+    ad = PolynomialAdapter(M, K, G, H)
+    K0 = ad.stiffness_matrix()
+    Phi = np.linalg.eigh(K)[1][:, :4]
+    q = np.array([0.3, 0.17, 0.011, 2.3])
+    policy = StepPolicy()
+    got = targeted_steps_tangent(ad.tangent_stiffness, K0, Phi, q, policy)
+    differs = 0
+    for j, res in enumerate(got):
+        phi = Phi[:, j]
+        for a, h, Hv in ((q[j], res.h, res.Hv), (policy.check_ratio * q[j], res.h_check, res.Hv_check)):
+            Kp, Km = (checked_matrix(ad.tangent_stiffness(s * phi), "K_T", ad, 12) for s in (a, -a))
+            X = (Kp + Km - 2.0 * K0) @ phi
+            old = float(phi @ X) / (6.0 * a * a)
+            assert h == old  # bit for bit
+            assert np.array_equal(Hv, np.asarray(X).ravel() / (6.0 * a * a))  # H(phi, phi, phi) kept as well
+            differs += float(phi @ (X / (6.0 * a * a))) != old  # the expression of the reviewed change
+    assert differs  # the case tells the two expressions apart (else the test could not fail)

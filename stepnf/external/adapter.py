@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import hashlib
+import threading
 import zipfile
 from pathlib import Path
 from typing import ClassVar, Sequence
@@ -13,6 +14,10 @@ from ..adapter import SolverAdapter, nonfinite_forces, real_array
 from ..errors import SolverRunError, StepnfError, allowed
 from ..lazy_matrices import LazyMatrices
 from .process import KEEP_POLICIES, RunRecord, WorkFolder, log_tail, run_command
+
+#: Held while a program's notice is printed (:meth:`ExternalSolverAdapter.run`); one lock for every adapter
+#: (a module-level lock keeps adapters picklable).
+_ANNOUNCING = threading.Lock()
 
 
 class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
@@ -107,10 +112,12 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
         scene named is printed on stderr before its first run."""
         argv = [self.executable, *argv[1:]]
         if self.program_named_by and not self._announced:
-            from ..programs import announce
+            from .. import programs
 
-            self._announced = True
-            announce(argv, f"named by {self.program_named_by}")
+            with _ANNOUNCING:  # parallel runs (threads): one notice, and none starts before it is printed
+                if not self._announced:
+                    programs.announce(argv, f"named by {self.program_named_by}")
+                    self._announced = True
         rec = run_command(argv, cwd=workdir, timeout=self.timeout,
                           log_name=log_name, env=self.run_env(), what=self.solver_label)
         self.runs.append(rec)

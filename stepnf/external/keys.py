@@ -28,6 +28,7 @@ from ..config import describe_value
 from ..errors import SceneError
 from ..geometry import keys as cap_keys
 from ..geometry.checks import units_warning
+from ..geometry.rim import cap_for_conditions
 from ..materials import ISOTROPIC, materials
 from ..programs import check_allowed
 from ..schema import Key, Schema
@@ -143,8 +144,9 @@ def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[...
                 scene_file: str | Path | None) -> Any:
     """The adapter ``cls`` for :func:`check_solid_config`'s keys: ``read_mesh(path, material=..., **run)``
     for a user's mesh, ``cls.from_deck_file(path, **run)`` for a deck, ``cls.from_cap`` for a
-    generated cap; every other key is passed on as a run setting, and ``materials`` (when
-    :func:`check_solid_config` gives it) to ``read_mesh``. Then the ``[[model.boundary]]``
+    generated cap (refined towards a rim the conditions hold, :mod:`stepnf.geometry.rim`); every other
+    key is passed on as a run setting, and ``materials`` (when :func:`check_solid_config` gives it) to
+    ``read_mesh``. Then the ``[[model.boundary]]``
     conditions (:meth:`SolidFromScene.apply_boundary`). Warns when the material's units and the
     mesh's sizes disagree; a model the adapter refuses (a ValueError) is a SceneError on ``[model]``."""
     model_data = ("element", "mesh", "deck", "geometry", "material", "materials", "boundary")
@@ -163,7 +165,11 @@ def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[...
             adapter = cls.from_deck_file(checked["deck"], **run)
         else:
             g = checked["geometry"]
-            adapter = cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=g["resolution"], **material, **run)
+            # conditions holding the whole rim refine the cap towards it, as for fenicsx (stepnf.geometry.rim),
+            # judged on the 20-node bricks from_cap builds (CapSolid.from_cap)
+            _, resolution = cap_for_conditions(g["a"], g["R"], g["h"], conditions, element="hex20",
+                                               scene_file=scene_file, **g["resolution"])
+            adapter = cls.from_cap(a=g["a"], R=g["R"], h=g["h"], resolution=resolution, **material, **run)
             units_warning(adapter.points, material, source=scene_file, thickness=g["h"])
         if conditions:
             adapter.apply_boundary(conditions, scene_file=scene_file, mesh=checked.get("mesh") or checked.get("deck"))
@@ -244,8 +250,11 @@ class SolidFromScene:
 
     @classmethod
     def named_programs(cls, config: Mapping[str, Any]) -> list[str]:
-        """The keys of :attr:`program_keys` that ``config`` gives (the adapter's defaults need no permission)."""
-        return [k for k in cls.program_keys if k in config]
+        """The keys of :attr:`program_keys` that ``config`` gives, other than with their documented default (the
+        adapter's defaults need no permission, written out or not: ``stepnf check`` fills them in)."""
+        keys = {k.name: k for k in cls.model_keys}
+        return [k for k in cls.program_keys
+                if k in config and not (k in keys and keys[k].default is not None and config[k] == keys[k].default)]
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,

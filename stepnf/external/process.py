@@ -1,35 +1,40 @@
 """Solver processes: executables, work folders, runs with a time-out and a log, expected output files."""
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
 from ..errors import SolverRunError, allowed
-from ..signals import received, track
+from ..programs import which
+from ..signals import Interrupted, deferred, received, track
 
 #: Work-folder keeping policies.
 KEEP_POLICIES = ("never", "on_error", "always")
 
 
 def find_executable(program: str | Path, *, what: str = "solver") -> str:
-    """Absolute path of ``program`` (a name on ``PATH`` or a path), or :class:`SolverRunError`."""
+    """Absolute path of ``program`` (a name on ``PATH`` or a path), or :class:`SolverRunError`. A name is
+    looked up in the absolute folders of ``PATH`` only (:func:`stepnf.programs.which`: an empty, ``.``
+    or relative entry would run a file of the current folder)."""
     prog = str(program)
     if os.sep in prog or (os.altsep and os.altsep in prog):
         p = Path(prog).expanduser()
         if p.is_file() and os.access(p, os.X_OK):
             return str(p.resolve())
         raise SolverRunError(f"{what} executable {prog!r} does not exist or is not executable")
-    found = shutil.which(prog)
+    found = which(prog)
     if found is None:
         raise SolverRunError(
-            f"{what} executable {prog!r} not found on PATH; install it or give its full path"
+            f"{what} executable {prog!r} not found on PATH (its absolute folders); install it or give its full path"
         )
     return found
 
@@ -114,7 +119,9 @@ def run_command(
     SIGINT, SIGTERM or SIGHUP to stepnf kills it (the main thread then
     unwinds with :class:`~stepnf.signals.Interrupted`; a call in another
     thread raises its :class:`SolverRunError`, and :class:`WorkFolder`
-    removes the folder all the same).
+    removes the folder all the same). A signal while the solver starts waits
+    until its group is registered (:func:`~stepnf.signals.deferred`), so no
+    solver is left running unregistered.
     """
     cwd = Path(cwd)
     log = cwd / log_name
@@ -126,17 +133,21 @@ def run_command(
     full_env = dict(os.environ)
     full_env.update(env or {})
     t0 = time.perf_counter()
-    with open(log, "wb") as out:
+    with open(log, "wb") as out, contextlib.ExitStack() as tracked:
+        with deferred():  # a signal until the child is tracked must not lose it (stepnf.signals.deferred)
+            try:
+                proc = subprocess.Popen(args, cwd=cwd, stdout=out, stderr=subprocess.STDOUT,
+                                        stdin=subprocess.DEVNULL, env=full_env, start_new_session=True)
+            except OSError as exc:
+                raise SolverRunError(f"{what} could not start: {' '.join(args)}: {exc}", workdir=cwd) from exc
+            tracked.enter_context(track(proc))
         try:
-            proc = subprocess.Popen(args, cwd=cwd, stdout=out, stderr=subprocess.STDOUT,
-                                    stdin=subprocess.DEVNULL, env=full_env, start_new_session=True)
-        except OSError as exc:
-            raise SolverRunError(f"{what} could not start: {' '.join(args)}: {exc}", workdir=cwd) from exc
-        try:
-            with track(proc):
-                if received() is not None:  # the signal came between the start and the registration
-                    raise SolverRunError(f"{what} stopped: stepnf was interrupted", workdir=cwd)
-                rc = proc.wait(timeout=timeout)
+            signum = received()
+            if signum is not None:  # the signal came while it started: stop it now that it is tracked
+                if threading.current_thread() is threading.main_thread():
+                    raise Interrupted(signum)
+                raise SolverRunError(f"{what} stopped: stepnf was interrupted", workdir=cwd)
+            rc = proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             _kill_group(proc)
             raise SolverRunError(

@@ -58,15 +58,15 @@ CAP_DIMENSIONS = Schema(
 CAP_RESOLUTION = Schema(
     Key("n_core", "integer", "elements across the half-width of the core square", default=DEFAULT_N_CORE,
         lo=RESOLUTION_RANGES["n_core"][0], hi=RESOLUTION_RANGES["n_core"][1]),
-    Key("n_ring", "integer", f"element rings from the core square to the edge (fenicsx: {HELD_N_RING} when "
-        "[[model.boundary]] holds the whole rim)", default=DEFAULT_N_RING,
+    Key("n_ring", "integer", f"element rings from the core square to the edge (fenicsx, calculix, code_aster: "
+        f"{HELD_N_RING} when [[model.boundary]] holds the whole rim)", default=DEFAULT_N_RING,
         lo=RESOLUTION_RANGES["n_ring"][0], hi=RESOLUTION_RANGES["n_ring"][1]),
     Key("n_thick", "integer", "elements through the thickness", default=DEFAULT_N_THICK,
         lo=RESOLUTION_RANGES["n_thick"][0], hi=RESOLUTION_RANGES["n_thick"][1]),
     Key("core", "number", "half-width of the core square, a fraction of a", default=DEFAULT_CORE,
         lo=CORE_RANGE[0], hi=CORE_RANGE[1], lo_open=True, hi_open=True),
-    Key("grading", "number", f"the rings' innermost radial width over the outermost, >= 1 (default 1; "
-        f"fenicsx: {HELD_GRADING:g} when [[model.boundary]] holds the whole rim)", lo=1.0, hi=MAX_GRADING),
+    Key("grading", "number", f"the rings' innermost radial width over the outermost, >= 1 (default 1; fenicsx, "
+        f"calculix, code_aster: {HELD_GRADING:g} when [[model.boundary]] holds the whole rim)", lo=1.0, hi=MAX_GRADING),
 )
 #: ``[model.geometry]`` of a generated 3D cap: its shape, a, R, h and the resolution.
 CAP_GEOMETRY = Schema(Key("shape", "choice", "the generated shape", default="spherical_cap", choices=SHAPES),
@@ -131,10 +131,13 @@ def cap_dofs(n_core: int, n_ring: int, n_thick: int) -> int:
 
 def cap_resolution(geom: Mapping[str, Any], scene_file) -> dict[str, Any]:
     """The resolution keys given in ``[model.geometry]`` (n_core, n_ring, n_thick, core), each within
-    its range and the whole mesh within :data:`MAX_CAP_DOFS` dofs."""
+    its range and the whole mesh within :data:`MAX_CAP_DOFS` dofs (with a held rim's rings when ``n_ring``
+    is not given)."""
     out = CAP_RESOLUTION.check({k: geom[k] for k in RESOLUTION_KEYS if k in geom}, file=scene_file,
                                where="model.geometry")
-    n = {"n_core": DEFAULT_N_CORE, "n_ring": DEFAULT_N_RING, "n_thick": DEFAULT_N_THICK, **out}
+    # rings not given: a held rim gets HELD_N_RING (stepnf.geometry.rim), known only once the conditions
+    # are applied to a mesh, so the bound assumes the larger count
+    n = {"n_core": DEFAULT_N_CORE, "n_ring": max(DEFAULT_N_RING, HELD_N_RING), "n_thick": DEFAULT_N_THICK, **out}
     dofs = cap_dofs(n["n_core"], n["n_ring"], n["n_thick"])
     if dofs > MAX_CAP_DOFS:
         key = max(("n_core", "n_ring", "n_thick"), key=lambda k: (k in out, n[k] / RESOLUTION_RANGES[k][1]))

@@ -16,7 +16,11 @@ stretching) and ``"in-plane"`` otherwise.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+
+from .cap import outward_normals
 
 
 class ModeLabeler:
@@ -77,3 +81,30 @@ class ModeLabeler:
         big = profile[np.abs(profile) > self.threshold * np.abs(profile).max()]
         n = int(np.count_nonzero(np.diff(np.sign(big)) != 0))
         return (k, n)
+
+
+def count_edge_circle(labels: list[Any]) -> list[Any]:
+    """``(k, n + 1)`` for every ``(k, n)`` label, other labels unchanged: the convention of a plate or shell
+    whose edge is held (normal displacement zero all along the rim, clamped or simply supported), whose
+    edge counts as a nodal circle as in the clamped-edge von Karman model (:mod:`stepnf.models.vonkarman`):
+    the clamped plate's fundamental is ``(0, 1)``, then ``(1, 1)``, ``(2, 1)``, ``(0, 2)``, whatever the
+    solver, so a scene's ``master_modes`` name the same modes in every model."""
+    return [(lab[0], lab[1] + 1) if isinstance(lab, tuple) and len(lab) == 2 else lab for lab in labels]
+
+
+def edge_is_held(points: np.ndarray, mid: np.ndarray, fixed: np.ndarray, a: float, R: float) -> bool:
+    """True when the fixed dofs zero the normal displacement at every mid-surface node of the rim.
+
+    ``points`` (N, 3) node coordinates, ``mid`` indices of the mid-surface nodes among them, ``fixed``
+    (3 N,) bool, dof ``3 i + c`` of node ``i`` in direction ``c`` fixed; the rim is the mid-surface nodes
+    at plan radius ``a`` (to 1e-6 relative), ``R`` the sphere's radius (``inf``: flat) giving the normals.
+    A clamped or simply supported edge is held; a free one, or one held only in-plane, is not.
+    """
+    mid = np.asarray(mid)
+    X = points[mid]
+    rim = mid[np.hypot(X[:, 0], X[:, 1]) >= float(a) * (1 - 1e-6)]
+    if rim.size == 0:
+        return False
+    free_dirs = ~np.asarray(fixed, dtype=bool).reshape(-1, 3)[rim]
+    normals = outward_normals(points[rim], float(R))
+    return bool(np.all(np.abs(normals[free_dirs]) <= 1e-12))

@@ -25,7 +25,7 @@ import scipy.sparse as sp
 
 from ..boundary import FreeDofs
 from .cap import outward_normals
-from .labels import ModeLabeler
+from .labels import ModeLabeler, count_edge_circle, edge_is_held
 from .midsurface import midsurface_sampler
 
 from .keys import MATERIAL_KEYS
@@ -122,4 +122,16 @@ class CapSolid:
             self._labeler = ModeLabeler(self.points[mid, :2], mid,
                                         outward_normals(self.points, float(self.geometry["R"])),
                                         float(self.geometry["a"]))
-        return [self._labeler.label(self.nodal(Phi[:, j])) for j in range(Phi.shape[1])]
+        labels = [self._labeler.label(self.nodal(Phi[:, j])) for j in range(Phi.shape[1])]
+        return count_edge_circle(labels) if self.edge_is_held() else labels
+
+    def edge_is_held(self) -> bool:
+        """True for a cap whose fixed dofs zero the normal displacement at every mid-surface node of its rim
+        (plan radius ``a``): a clamped or simply supported edge, which the labels count as a nodal circle
+        (:func:`stepnf.geometry.labels.count_edge_circle`, as the FEniCSx adapters do)."""
+        if not self._is_cap() or self.midsurface is None or self.free_dofs is None or self.free_dofs.all_free:
+            return False
+        fixed = np.zeros(self.free_dofs.n_full, dtype=bool)
+        fixed[self.free_dofs.fixed] = True
+        return edge_is_held(self.points, np.nonzero(self.midsurface)[0], fixed, self.geometry["a"],
+                            self.geometry["R"])

@@ -51,10 +51,15 @@ ${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
 Python): honoured only when the user allows programs named by scenes
 (``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.programs`),
 the command then printed before it first runs; a relative program in
-``command`` is the scene folder's. ``mesh_name`` (or a MED file's own mesh
-name), ``version`` and ``workdir`` are written into the command and
-``.export`` files, so quotes, backslashes and control characters are refused
-there (they could add code or lines).
+``command`` is the scene folder's; the default ``run_aster`` is looked up in
+the absolute folders of PATH only. The shipped command files hold names and
+paths as Python string literals (``${mesh_name_py}``, ``${matrices_file_py}``:
+``repr``); ``mesh_name`` (or a MED file's own mesh name, also ``${mesh_name}``
+as is, for a user's template) refuses quotes, backslashes and control
+characters, ``version`` anything but a plain version name, and the work
+folders' parent (``workdir``, else the temporary folder, TMPDIR) spaces,
+quotes, backslashes and control characters: the ``.export`` file names the
+files by their paths and splits its lines at spaces.
 
 MED helpers (:mod:`.med`): :func:`read_nodal_steps`, :func:`list_fields`,
 :func:`write_med`, :func:`add_nodal_field`.

@@ -48,6 +48,7 @@ import math
 import re
 import shlex
 import shutil
+import tempfile
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
@@ -63,10 +64,10 @@ from stepnf.external.keys import MEMORY_MB, NCPUS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
 from stepnf.materials import MATERIALS_KEY, Material, assign_cells
-from stepnf.programs import resolve_program
+from stepnf.programs import resolve_program, which
 from stepnf.schema import Key, Schema
 
-from .materials import has_axes, is_plain, materials_text
+from .materials import has_axes, is_plain, materials_text, python_str
 from .med import (MedError, add_nodal_field, read_cell_groups, read_groups, read_mesh_nodes, read_nodal_steps,
                   write_med)
 
@@ -96,12 +97,26 @@ MODEL_KEYS = Schema(
 )
 FIELD_IN, FIELD_OUT = "U", "F"
 REAL = "%.17g"
+#: Values the command files hold as Python strings: each also given as ``${<name>_py}``, a Python string
+#: literal of it quotes included (:func:`.materials.python_str`), which the shipped templates use.
+PY_STRINGS = ("mesh_name", "field_in", "field_out", "workdir", "matrices_file", "export")
+#: A folder the .export file can name: its lines are split at spaces (``F comm <path> D 1``), so no space,
+#: quote, backslash or control character.
+EXPORT_PATH = r"[^\s\"'\\\x00-\x1f\x7f]+"
 
 
 def shipped_template(name: str) -> CommandTemplate:
     """A template shipped with the adapter (``templates/code_aster/<name>`` of the source tree)."""
     res = resources.files("stepnf_code_aster").joinpath("templates", name)
     return CommandTemplate(res.read_text(encoding="utf-8"), source=f"stepnf_code_aster/templates/{name}")
+
+
+def export_folder_problem(folder: str | Path) -> str:
+    """'' when the .export and command files can name files in ``folder``, else what is wrong with it."""
+    if re.fullmatch(EXPORT_PATH, str(folder)):
+        return ""
+    return (f"{str(folder)!r}: code_aster's .export file names the work files by their paths and splits its lines "
+            "at spaces, so the folder's path may hold no space, quote, backslash or control character")
 
 
 def _plain(value: str, key: str, what: str, pattern: str) -> None:
@@ -172,9 +187,12 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         _plain(mesh_name, "mesh_name", "the mesh's name (written into the command files, which are Python)",
                r"[^\x00-\x1f\x7f\"'\\]+")
         _plain(version, "version", "a code_aster version name (a line of the .export file)", r"[A-Za-z0-9_.+-]+")
-        if self.workdir is not None:
-            _plain(str(self.workdir), "workdir", "a folder name (its path is written into the .export file)",
-                   r"[^\x00-\x1f\x7f]+")
+        problem = export_folder_problem(self.workdir if self.workdir is not None else tempfile.gettempdir())
+        if problem and self.workdir is not None:
+            raise SceneError(None, "model.workdir", problem)  # build_solid adds the scene file
+        if problem:
+            raise ValueError(f"the temporary folder {problem}; it holds the work folders when no [model] workdir is "
+                             "given: set TMPDIR or [model] workdir to another folder")
         self.points = np.asarray(points, dtype=float)
         self.cells = None if cells is None else np.asarray(cells, dtype=np.int64)
         self.cell_type = cell_type
@@ -208,6 +226,10 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             from stepnf.materials import material as checked_material
 
             self.apply_materials({None: checked_material(self.material, None, "model.material")})
+        filled = self._values(Path("workdir"), "forces")
+        unfilled = [name for name in self.command.placeholders if name not in filled]
+        if unfilled:  # found now, not when the first job is rendered (after the mesh is built and written)
+            raise ValueError(f"command: placeholder(s) {unfilled} that stepnf does not fill; it fills {sorted(filled)}")
 
     def apply_materials(self, materials: Mapping[str | None, Material], *, scene_file: Any = None) -> None:
         """One material per named group of volume cells of the MED mesh (``[model.materials.<group>]``), the
@@ -301,6 +323,11 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
     # ----------------------------------------------------------------- jobs
     def _values(self, workdir: Path, job: str, n_fields: int = 0) -> dict[str, Any]:
+        """The placeholders' values for ``job`` run in ``workdir``; ``${<name>_py}`` for the names of
+        :data:`PY_STRINGS`. A work folder the .export file cannot name is a SolverRunError."""
+        problem = export_folder_problem(workdir)
+        if problem:
+            raise SolverRunError(f"code_aster work folder {problem}", workdir=workdir)
         vals: dict[str, Any] = {
             "mesh_name": self.mesh_name, "field_in": FIELD_IN, "field_out": FIELD_OUT,
             "n_fields": int(n_fields), "max_iterations": 10, "workdir": str(workdir),
@@ -309,6 +336,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             **{k: REAL % v for k, v in self.material.items()}, **self.export_values,
             "materials": self.material_lines[0], "cara_elem": self.material_lines[1],
         }
+        vals.update({f"{k}_py": python_str(vals[k]) for k in PY_STRINGS})
         return vals
 
     def _write_model(self, workdir: Path, U: np.ndarray | None = None) -> None:
@@ -335,11 +363,13 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
     def run(self, argv, workdir, *, log_name="solver.log"):
         """Run the command; a missing executable gets a hint about docker images."""
-        if shutil.which(self.executable) is None and not Path(self.executable).is_file():
+        exe = self.executable
+        if (which(exe) is None) if "/" not in exe else not Path(exe).is_file():
             raise SolverRunError(
-                f"code_aster command {self.executable!r} not found: install code_aster (run_aster on PATH) or "
+                f"code_aster command {exe!r} not found: install code_aster (run_aster on PATH) or "
                 f"run it from an image with [model] command = \"docker run --rm -v ${{workdir}}:${{workdir}} "
-                f"<code_aster image> run_aster ${{export}}\"", workdir=workdir)
+                f"<code_aster image> run_aster ${{export}}\" and --allow-programs (a command the scene names runs "
+                "only when you allow it)", workdir=workdir)
         return super().run(argv, workdir, log_name=log_name)
 
     def write_force_job(self, workdir: Path, U: np.ndarray) -> list[str]:

@@ -79,7 +79,7 @@ def materials_text(materials: Mapping[str | None, Material]) -> tuple[str, str]:
     with_axes = "axes" in materials[None].constants if None in materials else False
     for key in _default_first(materials)[0 if with_axes else (1 if None in materials else 0):]:
         angles = ", ".join(REAL % a for a in nautical_angles(rotation(materials[key].constants.get("axes"))))
-        massif.append(f"_F(GROUP_MA={_quoted(ALL_CELLS if key is None else key)}, ANGL_REP=({angles}))")
+        massif.append(f"_F(GROUP_MA={python_str(ALL_CELLS if key is None else key)}, ANGL_REP=({angles}))")
     if with_axes:
         lines.append(f'mesh = DEFI_GROUP(reuse=mesh, MAILLAGE=mesh, CREA_GROUP_MA=_F(NOM="{ALL_CELLS}", '
                      'TOUT="OUI"))\n')
@@ -92,11 +92,16 @@ def _default_first(materials: Mapping[str | None, Material]) -> list[str | None]
 
 
 def _where(key: str | None) -> str:
-    return 'TOUT="OUI"' if key is None else f"GROUP_MA={_quoted(key)}"
+    return 'TOUT="OUI"' if key is None else f"GROUP_MA={python_str(key)}"
 
 
-def _quoted(name: str) -> str:
-    return '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'
+def python_str(value: str) -> str:
+    """A Python string literal of exactly ``value`` (``repr``), between double quotes as the templates are
+    written when ``value`` holds none: a value written into a command file (Python run by code_aster) is
+    data whatever its characters, never code."""
+    text = repr(str(value))
+    # repr picks single quotes unless the value holds one; then, without a double quote, none is escaped
+    return '"' + text[1:-1] + '"' if text[0] == "'" and '"' not in value else text
 
 
 def _call(head: str, first: str, keyword: str, items: Sequence[str]) -> str:

@@ -12,11 +12,12 @@ import functools
 import io
 import logging
 import os
-import stat
 import sys
 import tempfile
 import warnings
 from pathlib import Path
+
+from stepnf.atomic import private_folder
 
 
 def cache_dir() -> Path:
@@ -30,7 +31,7 @@ def cache_dir() -> Path:
     image run by a user without a writable home). Resolved once per environment.
 
     The cache holds compiled ``.so`` files the next run loads, so it must be the user's
-    alone (:func:`private_folder`): folders made for it are created 0700 whatever the
+    alone (:func:`stepnf.atomic.private_folder`): folders made for it are created 0700 whatever the
     umask, and a folder (or its parent) that belongs to another user or is group- or
     world-writable is not used: an error for ``STEPNF_CACHE_DIR``, else the next
     candidate with one :class:`OutputWarning` (in the temporary folder, a fresh
@@ -43,53 +44,6 @@ def cache_dir() -> Path:
     except FileNotFoundError:  # no writable temporary folder at all: the message names STEPNF_CACHE_DIR
         tmp = None
     return _resolve_cache(env or None, xdg, tmp)
-
-
-def _make_private(path: Path) -> None:
-    """Create ``path`` and its missing parents with mode 0700 (chmod-ed: the umask may be 000)."""
-    missing = []
-    p = path
-    while not os.path.lexists(p) and p != p.parent:
-        missing.append(p)
-        p = p.parent
-    for p in reversed(missing):
-        try:
-            os.mkdir(p, 0o700)
-            os.chmod(p, 0o700)
-        except FileExistsError:
-            continue
-        except OSError:  # check_folder says why
-            return
-
-
-def unsafe_reason(path: Path) -> str | None:
-    """Why ``path`` is no folder to load compiled code from, or ``None``: it (and its parent, unless
-    sticky like /tmp) must not be group- or world-writable, and must be this user's (the parent this
-    user's or root's)."""
-    if not hasattr(os, "geteuid"):
-        return None
-    uid = os.geteuid()
-    for p, owners in ((path, (uid,)), (path.parent, (uid, 0))):
-        try:
-            st = os.stat(p)
-        except OSError as exc:
-            return f"{p} cannot be examined ({exc.strerror or exc})"
-        if st.st_uid not in owners:
-            return f"{p} belongs to another user (uid {st.st_uid})"
-        sticky = p != path and st.st_mode & stat.S_ISVTX
-        if st.st_mode & 0o022 and not sticky:
-            return f"{p} is writable by others (mode {stat.S_IMODE(st.st_mode):04o})"
-    return None
-
-
-def private_folder(path: Path) -> tuple[str | None, str | None]:
-    """Make ``path`` a cache folder (:func:`_make_private`); ``(why it is not writable, why it is not
-    safe)``, each ``None`` when all is well."""
-    from stepnf.atomic import check_folder
-
-    _make_private(path)
-    why = check_folder(path)
-    return why, (None if why else unsafe_reason(path))
 
 
 @functools.lru_cache(maxsize=None)

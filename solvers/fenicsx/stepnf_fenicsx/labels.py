@@ -9,14 +9,6 @@ does (:mod:`stepnf.models.vonkarman`): the clamped plate's fundamental is
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from stepnf.geometry.labels import ModeLabeler, count_edge_circle, edge_is_held
 
-from stepnf.geometry.labels import ModeLabeler
-
-
-def count_edge_circle(labels: Sequence[Any]) -> list[Any]:
-    """``(k, n + 1)`` for every ``(k, n)`` label (the held edge is a nodal circle); other labels unchanged."""
-    return [(lab[0], lab[1] + 1) if isinstance(lab, tuple) and len(lab) == 2 else lab for lab in labels]
-
-
-__all__ = ["ModeLabeler", "count_edge_circle"]
+__all__ = ["ModeLabeler", "count_edge_circle", "edge_is_held"]

@@ -34,14 +34,14 @@ import numpy as np
 
 from stepnf.boundary import BoundaryCondition, FreeDofs
 from stepnf.errors import SceneError
-from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals, spherical_cap
-from stepnf.geometry.rim import rim_is_held, rim_resolution
+from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals
+from stepnf.geometry.rim import cap_for_conditions
 
 from . import _compat
 from ._forms_adapter import FormsAdapter
 from .config import MODEL_KEYS, parse_model
 from .constraints import as_conditions, describe_conditions, dof_node_mask, free_dofs_of, point_mask
-from .labels import count_edge_circle
+from .labels import count_edge_circle, edge_is_held
 from .meshfile import read_mesh
 from .model import Material, SvkForms
 from .regions import CellMaterials, assign_materials, describe_material
@@ -144,11 +144,8 @@ class FenicsxAdapter(FormsAdapter):
         (:mod:`stepnf.geometry.rim`: more rings, graded)."""
         if element not in ("hex27", "tet10"):
             raise ValueError(f"Unknown element {element!r}. Pick one of ['hex27', 'tet10']")
-        mesh = spherical_cap(a, R, h, element="hex27", **resolution)
         boundary = as_conditions(boundary, scene_file)
-        held = rim_resolution(resolution, rim_is_held(mesh, boundary, scene_file))
-        if held != resolution:
-            mesh = spherical_cap(a, R, h, element="hex27", **held)
+        mesh, _ = cap_for_conditions(a, R, h, boundary, element="hex27", scene_file=scene_file, **resolution)
         if element == "tet10":
             from stepnf.geometry.tets import hex27_to_tetra
 
@@ -284,16 +281,9 @@ class FenicsxAdapter(FormsAdapter):
         at every mid-surface node of its rim (plan radius ``a``): a clamped or simply supported edge."""
         if self._free is None or self.geometry is None:
             return False
-        mid = self._midsurface_nodes()
-        X = self._nodes[mid]
-        rim = mid[np.hypot(X[:, 0], X[:, 1]) >= float(self.geometry["a"]) * (1 - 1e-6)]
-        if rim.size == 0:
-            return False
         fixed = np.zeros(self._free.n_full, dtype=bool)
         fixed[self._free.fixed] = True
-        free_dirs = ~fixed.reshape(-1, 3)[rim]
-        normals = outward_normals(self._nodes[rim], self._R())
-        return bool(np.all(np.abs(normals[free_dirs]) <= 1e-12))
+        return edge_is_held(self._nodes, self._midsurface_nodes(), fixed, self.geometry["a"], self._R())
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()
