@@ -18,10 +18,34 @@ from .limits import one_blas_thread
 
 one_blas_thread()  # under `ulimit -v`, before numpy starts OpenBLAS (stepnf.limits)
 
-from .adapter import SolverAdapter  # noqa: E402
-from .backbone import MethodResult, backbone_T  # noqa: E402
+from typing import TYPE_CHECKING  # noqa: E402
+
 from .errors import AdapterError, SceneError, SolverRunError, StepnfError, UnknownSolverError  # noqa: E402
-from .modal_model import ModalModel  # noqa: E402
+
+#: The names below import numpy and scipy: loaded when first asked for (``stepnf.SolverAdapter``), so that
+#: ``import stepnf`` itself imports nothing heavy and the command line (:mod:`stepnf.console`) can turn a
+#: memory limit too low for numpy into a message.
+_LAZY = {"SolverAdapter": "adapter", "MethodResult": "backbone", "backbone_T": "backbone",
+         "ModalModel": "modal_model"}
+
+
+if TYPE_CHECKING:  # what the lazy names are, for type checkers
+    from .adapter import SolverAdapter
+    from .backbone import MethodResult, backbone_T
+    from .modal_model import ModalModel
+
+
+def __getattr__(name: str):
+    """``stepnf.SolverAdapter`` and the other :data:`_LAZY` names, imported on first use."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from importlib import import_module
+
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "SolverAdapter", "ModalModel", "MethodResult", "backbone_T",

@@ -84,6 +84,10 @@ class SolverAdapter(FromScene):
     #: STEP amplitude (fraction of the characteristic length) this solver works best with, when the
     #: scene gives none; e.g. larger for a solver that prints few digits. ``None``: stepnf's default.
     step_relative_amplitude: ClassVar[float | None] = None
+    #: Significant decimal digits of the forces :meth:`internal_forces` returns when the solver prints
+    #: them rounded (CalculiX's ``.dat``: 7); ``None``: double precision. The conformance harness bounds
+    #: the rounding of its finite differences with it (:func:`stepnf.testing.check_conservative_force`).
+    force_digits: ClassVar[int | None] = None
 
     # ------------------------------------------------------------------ set-up
     def close(self) -> None:

@@ -7,8 +7,10 @@ with that same table. One line per check says ``passed``, ``skipped`` (and
 why the check does not apply) or ``FAILED`` (and what is wrong). The CLI
 exits with 0 when no check failed, 3 when one did, 2 for a bad scene or an
 unknown solver. The checks use the default :class:`stepnf.testing.Tolerances`
-(forces computed in double precision); a solver that prints few digits is
-checked from Python with its own tolerances (``run_checks(..., Tolerances(batch=1e-6, ...))``).
+(forces computed in double precision), plus the bound of the rounding of the
+digits an adapter declares it prints (``force_digits``, CalculiX: 7) where that
+rounding matters; tighter or looser tolerances are for Python
+(``run_checks(..., Tolerances(batch=1e-6, ...))``).
 """
 from __future__ import annotations
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from .errors import SceneError
+from .errors import SceneError, StepnfError
 
 #: The shape of an address before Dask parses it: an optional "scheme://", then no blank and no leading "/".
 _ADDRESS = re.compile(r"^([a-z][a-z0-9+.-]*://)?[^\s/][^\s]*$")
@@ -35,3 +35,12 @@ def check_scheduler(path: Path | None, key: str | None, address: str, prefix: st
         raise SceneError(path, key, f"{prefix}expected a scheduler address such as \"tcp://10.0.0.5:8786\" or "
                          f"\"10.0.0.5:8786\", got {address!r}: {why}")
     return address
+
+
+def unreachable(path: Path | None, address: str, from_option: bool, exc: BaseException) -> StepnfError:
+    """The error (exit 3) for a scheduler Dask could not connect to: names the sweep file ``path``, where the
+    address came from (``[sweep.dask] scheduler`` or, ``from_option``, ``--scheduler``) and Dask's reason."""
+    where = "--scheduler" if from_option else "[sweep.dask] scheduler"
+    return StepnfError(f"{path or '<sweep>'}: {where} = {address!r}: no Dask scheduler answered there ({exc}); "
+                       "start one there (`dask scheduler`), correct the address, or leave it out to run on this "
+                       "machine")

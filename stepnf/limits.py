@@ -18,13 +18,17 @@ Measured with the 12-dof ``examples/polynomial.toml`` (``ulimit -v`` in kB): bef
 hung (killed after 40 s), 600000 worked; now 110000 to 280000 are the message in about a second, 290000
 and above run (the run peaks at ~280 MB of address space with one BLAS thread; with ``plot = true``,
 at 300000 matplotlib does not fit: a warning, no figure, the results all there; 350000 draws it). Below ~105 MB Python cannot
-import numpy and scipy at all: their ``MemoryError`` at import (exit 1, at once). Without a limit
+import numpy and scipy at all: one line naming the limit (:func:`numpy_does_not_fit`, exit 3, at once; before,
+their ``MemoryError`` traceback at import, exit 1), from :func:`reserve_blas_buffer`, which imports them
+first, or from :mod:`stepnf.console` when importing the command line fails so. When :func:`one_blas_thread`
+changed OpenBLAS's thread count, :func:`reserve_blas_buffer` says so once on stderr. Without a limit
 nothing changes.
 """
 from __future__ import annotations
 
 import os
 import resource
+import sys
 
 from .errors import StepnfError
 
@@ -41,10 +45,30 @@ def address_space_limit() -> int | None:
     return None if soft == resource.RLIM_INFINITY else int(soft)
 
 
+#: The thread count OpenBLAS would have had when :func:`one_blas_thread` made it one (said once by
+#: :func:`reserve_blas_buffer`); None when it changed nothing.
+_threads_before: int | None = None
+
+
 def one_blas_thread() -> None:
     """Under an address-space limit, ``OPENBLAS_NUM_THREADS=1`` unless set (effective only before numpy's import)."""
+    global _threads_before
     if address_space_limit() is not None and "OPENBLAS_NUM_THREADS" not in os.environ:
+        before = openblas_default_threads()
         os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        if before > 1 and "numpy" not in sys.modules:  # numpy already loaded: OpenBLAS kept its threads
+            _threads_before = before
+
+
+def openblas_default_threads() -> int:
+    """The threads OpenBLAS starts without ``OPENBLAS_NUM_THREADS``: ``GOTO_NUM_THREADS``, else
+    ``OMP_NUM_THREADS``, else one per core this process may run on; never more than those cores."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    for name in ("GOTO_NUM_THREADS", "OMP_NUM_THREADS"):
+        value = os.environ.get(name, "")
+        if value.isdigit() and int(value) > 0:
+            return min(int(value), cores)
+    return cores
 
 
 def _address_space_used() -> int | None:
@@ -70,6 +94,13 @@ def reserve_blas_buffer() -> None:
     limit = address_space_limit()
     if limit is None:
         return
+    try:  # measured with them loaded, as every command loads them
+        import numpy as np
+        import scipy.linalg.lapack as lapack
+    except (MemoryError, ImportError) as exc:
+        if short_of_memory(exc):
+            raise StepnfError(numpy_does_not_fit(limit)) from exc
+        raise
     used = _address_space_used()
     threads = _blas_threads()
     need = threads * BLAS_BUFFER + HEADROOM
@@ -80,10 +111,20 @@ def reserve_blas_buffer() -> None:
             f"Python, numpy and scipy already take {used / mib:.0f} MiB; stepnf needs {need / mib:.0f} MiB more "
             f"(OpenBLAS's {BLAS_BUFFER / mib:.0f} MiB work buffer for each of its {threads} thread(s), and room "
             f"to compute), so at least ulimit -v {(used + need) // 1024 + 1}: raise or remove the limit")
-    import numpy as np
-    import scipy.linalg.lapack as lapack
-
+    if _threads_before is not None:  # the one note of stepnf having changed OpenBLAS's threads (one_blas_thread)
+        print(f"stepnf: note: under the address-space limit (ulimit -v {limit // 1024}) OpenBLAS runs on 1 thread "
+              f"instead of {_threads_before} (its {BLAS_BUFFER // 2**20} MiB work buffer per thread); set "
+              "OPENBLAS_NUM_THREADS to choose", file=sys.stderr)
     lapack.dpotrf(np.eye(2))  # OpenBLAS's buffer taken now, while there is room, and kept
+
+
+def numpy_does_not_fit(limit: int | None) -> str:
+    """The message (after "stepnf: error: ") for numpy and scipy not fitting at import under the address-space
+    limit ``limit`` (bytes, None when unlimited)."""
+    room = ("this machine's free memory is too little" if limit is None else
+            f"the address-space limit (ulimit -v {limit // 1024}, RLIMIT_AS) is {limit / 2**20:.0f} MiB, too little")
+    return (f"memory limit: {room} for Python to load the modules stepnf needs (numpy, scipy); raise or remove "
+            "the limit (a small model runs from about ulimit -v 300000)")
 
 
 def short_of_memory(exc: BaseException) -> bool:
@@ -100,8 +141,6 @@ def out_of_memory(exc: BaseException) -> bool:
     (:class:`stepnf.progress.Progress` marks it) and any ``ulimit -v``; False (nothing said) otherwise."""
     if not short_of_memory(exc):
         return False
-    import sys
-
     limit = address_space_limit()
     stage = getattr(exc, "stepnf_stage", None)
     room = f"the address-space limit (ulimit -v {limit // 1024})" if limit else "this machine's memory"

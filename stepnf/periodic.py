@@ -80,6 +80,13 @@ def highest_frequency(K, M) -> float:
     return float(np.sqrt(max(float(lam[-1]), 0.0)))
 
 
+def shooting_method(integrator: str, stiffness_ratio: float) -> str:
+    """What :class:`Shooting` integrates with: ``"implicit"`` or ``"explicit"`` for ``integrator`` (one of
+    :data:`INTEGRATORS`) at ``stiffness_ratio = w_max / w`` (``"auto"``: implicit above :data:`STIFF_RATIO`)."""
+    stiff = stiffness_ratio > STIFF_RATIO
+    return "implicit" if integrator == "implicit" or (integrator == "auto" and stiff) else "explicit"
+
+
 @dataclass
 class PeriodicOrbit:
     """A converged brake orbit: ``x0`` (n,), period ``T``, ``omega = 2 pi / T``, amplitude ``A`` of q_p."""
@@ -128,8 +135,7 @@ class Shooting:
             cho = sla.cho_factor(np.asarray(M, dtype=float))
             self.Minv = lambda b: sla.cho_solve(cho, b)
         self.stiffness_ratio = highest_frequency(K, M) / self.omega
-        stiff = self.stiffness_ratio > STIFF_RATIO
-        self.method = "implicit" if integrator == "implicit" or (integrator == "auto" and stiff) else "explicit"
+        self.method = shooting_method(integrator, self.stiffness_ratio)
         self.steps = 2 * max(int(np.ceil(steps / 2)), 1)  # even: T / 2 is a node
         self._gl = None
         self._J: np.ndarray | None = None  # the implicit shooting's last Jacobian (a chord) and its period

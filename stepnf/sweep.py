@@ -51,7 +51,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from .config import check_name, check_number, check_table, check_text, check_unknown, describe_value, read_toml
-from .dask_address import check_scheduler
+from .dask_address import check_scheduler, unreachable
 from .errors import SceneError, StaleWarning
 from .model_key import digest
 from .sweep_store import (STORE_FORMAT, STORE_FORMAT_VERSION, read_store, remove_cases, stale_cases,  # noqa: F401
@@ -322,7 +322,10 @@ def run_sweep(sweep: Sweep, *, scheduler: str | None = None, n_workers: int | No
     logging.getLogger("distributed").setLevel(logging.WARNING)
     cluster = None
     if address:
-        client = Client(address)
+        try:
+            client = Client(address)
+        except OSError as exc:  # refused, timed out (Dask's "Timed out trying to connect"), unknown host
+            raise unreachable(sweep.file, address, scheduler is not None, exc) from exc
     else:
         cluster = LocalCluster(n_workers=n_workers or sweep.n_workers or min(len(todo), os.cpu_count() or 1),
                                threads_per_worker=sweep.threads_per_worker, processes=True,

@@ -38,6 +38,18 @@ class Tolerances:
         return self.conservative if self.conservative is not None else max(1e-6, 1e3 * self.batch)
 
 
+def force_rounding(adapter: SolverAdapter) -> float:
+    """Largest relative rounding of one force entry the adapter declares (``force_digits``), 0 without one.
+
+    A number printed with ``d`` significant digits (``%.{d-1}E``, ``m 10^e`` with ``1 <= |m| < 10``) is off by
+    at most half a unit of its last digit, ``0.5 10^(e-d+1) <= 0.5 10^(1-d) |x|``: 5e-7 for CalculiX's 7.
+    The round-off of forces computed in double precision is left to the tolerances' floors (it is relative
+    to the largest element contribution, not to each entry, and far below them).
+    """
+    d = getattr(adapter, "force_digits", None)
+    return 0.0 if d is None else 0.5 * 10.0 ** (1 - int(d))
+
+
 class CheckSkipped(Exception):
     """A check does not apply to this adapter; the message says why."""
 

@@ -229,7 +229,9 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
     Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``,
     ``method``, ``modes`` (one entry per master: ``index``, ``label``, ``omega``, ``order``,
     ``amplitudes_from``, ``checks``, one dict per amplitude, and ``failed``, one ``{amplitude, error}``
-    per orbit that could not be computed, when any). Without ``amplitudes``, each mode is
+    per orbit that could not be computed, when any; by shooting, ``integrator``, ``"implicit"`` or
+    ``"explicit"``, chosen for the master whatever its orbits do, and ``stiffness_ratio``, ``w_max / w``).
+    Without ``amplitudes``, each mode is
     checked at the scene's amplitudes within its validity limit (:func:`scene_amplitudes`), else at
     ``fractions`` of that limit (:func:`default_amplitudes`); ``rtol`` the
     integration's frequency accuracy (:func:`stepnf.integrate.measure`). A scene without
@@ -269,6 +271,10 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
         n = K.shape[0]
         tangent = adapter.tangent_stiffness if adapter.provides_tangent_stiffness else None
         shooting = n <= (SHOOTING_LIMIT if tangent is not None else 40)
+        if shooting:  # the integrator chosen for each master (stepnf.periodic.Shooting), whatever its orbits do
+            from .periodic import highest_frequency, shooting_method
+
+            w_max = highest_frequency(K, M)
         labels = {m.index: m.label for m in getattr(result, "modes", [])}
         doc = {"scene": str(where), "n_dofs": int(n), "method": "shooting" if shooting else "integration",
                "periods": None if shooting else periods, "modes": []}
@@ -292,6 +298,9 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                                      f"differ by more than {tol:g}); no trustworthy starting orbit there")
             entry = {"index": int(p), "label": _label(labels.get(p)), "omega": float(res.omega),
                      "order": int(res.order), "amplitudes_from": src, "checks": []}
+            if shooting:
+                ratio = w_max / float(res.omega)
+                entry.update(integrator=shooting_method(integrator, ratio), stiffness_ratio=ratio)
             plan.append((who, res, entry, amps))
             doc["modes"].append(entry)
         clock = OrbitClock(sum(len(a) for *_, a in plan), say)
@@ -379,7 +388,11 @@ def failed_orbits(doc: dict) -> int:
 
 def format_report(doc: dict) -> str:
     """The side-by-side table ``stepnf verify`` prints."""
-    works = [c.get("work") or {} for m in doc["modes"] for c in m["checks"]]
+    # the integrator chosen for each master (``modes[i].integrator``), whatever its orbits' outcome; a
+    # document without it (an older stepnf's): the orbits' own record
+    works = ([{"method": m["integrator"], "stiffness_ratio": m["stiffness_ratio"]} for m in doc["modes"]]
+             if all("integrator" in m for m in doc["modes"]) else
+             [c.get("work") or {} for m in doc["modes"] for c in m["checks"]])
     stiff = [w["stiffness_ratio"] for w in works if w.get("method") == "implicit"]
     how = ("shooting (DOP853, rtol 1e-12)" if doc["method"] == "shooting" and not stiff else
            f"shooting (stiff, w_max/w up to {max(stiff):.3g}: implicit Gauss-Legendre of order 16"

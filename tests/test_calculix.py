@@ -280,3 +280,23 @@ def test_parallel_ccx_runs_equal_one_run():
     F1, F2 = one.internal_forces(U), two.internal_forces(U)
     assert len(one.runs) == 1 and len(two.runs) == 2
     np.testing.assert_array_equal(F1, F2)
+
+
+@pytest.mark.parametrize("edge", ["free", "clamped"])
+def test_stepnf_check_passes_a_coarse_cap(tmp_path, capsys, edge):
+    """Issue 29: ``stepnf check`` on a generated cap failed ``conservative_force`` (the rounding of the 7
+    printed digits made the tangent look asymmetric by 1e-5 .. 1e-4 against the 1e-6 of exact forces);
+    the adapter declares ``force_digits = 7`` and the check allows the rounding's bound on top."""
+    from stepnf.cli import main
+
+    scene = tmp_path / "cap.toml"
+    held = '[[model.boundary]]\nset = "edge"\n' if edge == "clamped" else ""
+    scene.write_text('[model]\nsolver = "calculix"\nkeep = "never"\nthreads = 1\n[model.geometry]\n'
+                     'shape = "spherical_cap"\na = 0.15\nR = 1.5\nh = 0.003\nn_core = 2\nn_ring = 1\n'
+                     '[model.material]\nE = 1.04e11\nnu = 0.3\nrho = 4400.0\n' + held +
+                     '[analysis]\nmaster_modes = [0]\nmethods = ["dnf"]\n')
+    code = main(["check", str(scene)])
+    out, err = capsys.readouterr()
+    assert code == 0, out + err
+    assert "passed   conservative_force" in out
+    assert CalculixAdapter.force_digits == 7  # the .dat file's %13.6E

@@ -192,3 +192,63 @@ def test_conservative_tolerance_follows_the_force_precision():
     assert Tolerances().conservative_tolerance() == 1e-6
     assert Tolerances(batch=1e-6).conservative_tolerance() == pytest.approx(1e-3)
     assert Tolerances(conservative=1e-4).conservative_tolerance() == 1e-4
+
+
+# ------------------------------------------------------------------ forces printed with few digits (issue 29)
+def printed(f: np.ndarray) -> np.ndarray:
+    """``f`` as CalculiX prints it (``%13.6E``, 7 significant digits)."""
+    return np.array([float(f"{x:.6e}") for x in f])
+
+
+class PrintedChain(DuffingChain):
+    """The conservative chain, its forces rounded to the 7 digits it declares (as a ccx .dat file)."""
+
+    force_digits = 7
+
+    def _internal_force(self, u):
+        return printed(super()._internal_force(u))
+
+
+class PrintedNonConservativeChain(NonConservativeChain):
+    force_digits = 7
+
+    def _internal_force(self, u):
+        return printed(super()._internal_force(u))
+
+
+def test_a_conservative_force_printed_with_7_digits_passes():
+    # the rounding alone makes the chain's tangent look asymmetric by 3e-5 .. 1.1e-4 relative (measured), above
+    # the 1e-6 floor: before the rounding bound this failed, as the CalculiX caps did (1e-5 .. 1e-4)
+    check_conservative_force(PrintedChain(), Tolerances())
+    undeclared = PrintedChain()
+    undeclared.force_digits = None  # the same forces, claimed exact: the rounding is what the check saw
+    with pytest.raises(AssertionError, match="not conservative"):
+        check_conservative_force(undeclared, Tolerances())
+
+
+@pytest.mark.parametrize("eps", [1e-1, 1e-2, 1e-3])
+def test_a_non_conservative_force_printed_with_7_digits_still_fails(eps):
+    # the rounding allowance of this chain is 9.4e-4 .. 1.0e-3 per pair (its rigorous bound, measured); a term
+    # eps A u^3 makes the asymmetry ~2 eps (measured 0.19, 2.0e-2, 1.9e-3): caught down to eps = 1e-3
+    bad = PrintedNonConservativeChain()
+    bad.eps = eps
+    with pytest.raises(AssertionError, match="not conservative.*7 significant digits"):
+        check_conservative_force(bad, Tolerances())
+
+
+def test_the_rounding_allowance_is_the_bound_of_the_printed_digits():
+    from stepnf.testing import _asymmetry, _nonlinear_products
+    from stepnf.testing_base import force_rounding, random_fields
+
+    ad = PrintedChain()
+    assert force_rounding(ad) == pytest.approx(5e-7)  # half a unit of the 7th significant digit
+    assert force_rounding(DuffingChain()) == 0.0
+    u = 10 * random_fields(ad, 1, seed=5, per_direction=True)[0]
+    V = 10 * random_fields(ad, 3, seed=6, per_direction=True)
+    D, bound = _nonlinear_products(ad, u, V, 0.1)
+    exact, _ = _nonlinear_products(DuffingChain(), u, V, 0.1)
+    # every entry's rounding error is within its bound (the bound is rigorous, not a fit)
+    assert np.all(np.abs(D - exact) <= bound)
+    KV = (ad.stiffness_matrix() @ V.T).T
+    asym, limit = _asymmetry(V, D, KV, bound, 1e-6)
+    assert 1e-6 < asym < limit

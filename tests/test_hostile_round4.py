@@ -210,3 +210,61 @@ def test_checkpoint_chunk_that_is_a_fifo_is_not_read(tmp_path):
     t.start()
     t.join(10)
     assert not t.is_alive() and got == {"a": None, "b": None}
+
+
+# ------------------------------------------------------------------ verify: the header names the integrator chosen
+def test_verify_header_names_the_implicit_integrator_when_every_orbit_failed(tmp_path, capsys, monkeypatch):
+    """The model judged stiff (STIFF_RATIO lowered to 0 here: "auto" picks the implicit integrator for the
+    2-dof system) and every orbit failing: the header still names the implicit integrator (before: it was
+    read from the orbits that succeeded, none, and said "DOP853")."""
+    from stepnf import periodic
+    from stepnf.errors import NumericalError
+    from test_verify import run_cli as run_verify, write_scene
+
+    def fail(self, A, **kw):
+        raise NumericalError("shooting: Newton did not converge in 25 iterations")
+    monkeypatch.setattr(periodic, "STIFF_RATIO", 0.0)
+    monkeypatch.setattr(periodic.Shooting, "at_amplitude", fail)
+    code, out, err = run_verify(capsys, write_scene(tmp_path), "--amplitudes", 0.2, "--quiet")
+    header = out.splitlines()[0]
+    assert code == 3 and "Traceback" not in err, err
+    assert "implicit Gauss-Legendre" in header and "DOP853" not in header, header
+    assert "no orbit: master mode 0" in out
+
+
+# ------------------------------------------------------------------ sweep: a scheduler nobody answers at
+def closed_port() -> int:
+    """A loopback port nothing listens on (bound, then closed): a connection to it is refused at once."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("where", ["file", "option"])
+def test_unreachable_scheduler_names_the_key_or_the_option(tmp_path, capsys, where):
+    """An address Dask cannot reach: exit 3, naming the sweep file and ``[sweep.dask] scheduler`` (or
+    ``--scheduler``) beside the address (before: Dask's "Timed out trying to connect to tcp://... after
+    30 s" alone). Dask's connect timeout lowered to 2 s (distributed.comm.timeouts.connect) to keep it short."""
+    import dask
+    import distributed  # noqa: F401 - its defaults loaded first: leaving config.set would otherwise drop them
+
+    from stepnf_polynomial.adapter import save_system
+    from test_dpim import two_dof
+
+    save_system(tmp_path / "two_dof.npz", *two_dof())
+    (tmp_path / "base.toml").write_text('[model]\nsolver = "polynomial"\nfile = "two_dof.npz"\n'
+                                        '[analysis]\nmaster_modes = [0]\nmethods = ["nf"]\n')
+    address = f"tcp://127.0.0.1:{closed_port()}"
+    dask_table = f'[sweep.dask]\nscheduler = "{address}"\n' if where == "file" else ""
+    s = tmp_path / "s.toml"
+    s.write_text('[sweep]\nname = "st"\nbase = "base.toml"\n[sweep.vary]\n"analysis.retained_modes" = [2]\n'
+                 f'{dask_table}[output]\ndir = "out"\n')
+    args = ["sweep", s, "--quiet"] + (["--allow-programs"] if where == "file" else ["--scheduler", address])
+    t0 = time.perf_counter()
+    with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
+        o = run_cli(args, capsys)
+    assert time.perf_counter() - t0 < 30
+    key = "[sweep.dask] scheduler" if where == "file" else "--scheduler"
+    assert_reported(o, codes=(3,), mentions=["s.toml", key, address])

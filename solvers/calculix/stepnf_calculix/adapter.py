@@ -99,6 +99,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     #: the .dat file prints 7 digits: STEP is more precise at larger amplitudes (the force is an
     #: exact cubic for C3D20 with a linear elastic material, so a large amplitude costs nothing)
     step_relative_amplitude = 2.0
+    #: forces are read from the .dat file's ``%13.6E`` (results.read_dat_forces)
+    force_digits = 7
 
     def __init__(
         self,
@@ -287,7 +289,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             elements={t: int(len(e)) for t, e, _ in self.blocks}, template=self.job_template.source,
             material=self.material, geometry={k: (str(v) if isinstance(v, float) and math.isinf(v) else v)
                                               for k, v in self.geometry.items()},
-            force_precision="7 significant digits (.dat)", solver_runs=len(self.runs),
+            force_precision=f"{self.force_digits} significant digits (.dat)", solver_runs=len(self.runs),
         )
         if self.sections is not None and not is_plain(self.sections):
             d["materials"] = [s.describe() for s in self.sections]
