@@ -1,4 +1,4 @@
-"""Evaluators of T for one master mode: NF, DNF, MD, SMD (DESIGN.md section 1).
+"""Evaluators of T for one master mode: NF, DNF, MD, SMD (docs/design.md section 1).
 
 Modal versions sum over retained elastic modes ``S`` (Table 1, with the
 erratum: NF denominators ``w_s^2 (w_s^2 - 4 w^2)``). Full-order versions need
@@ -24,7 +24,7 @@ MethodResult.fields>`, each (n,) in the model's dof order (constrained dofs
 removed, as every vector of the adapter protocol), for a mass-normalised
 ``phi`` (``phi^T M phi = 1``; ``a`` is the modal amplitude, ``q_p = phi^T M x``):
 
-* :func:`dnf`: ``"a_bar"`` = a_bar of DESIGN.md (Eq. 9-10) and
+* :func:`dnf`: ``"a_bar"`` = a_bar of docs/design.md (Eq. 9-10) and
   ``"w2_b_bar"`` = ``w_p^2 b_bar`` (b_bar multiplies the squared velocity;
   times ``w_p^2`` it is a displacement per squared amplitude like a_bar).
   On the backbone, ``R = a cos(w t)``, ``R' = -a w sin(w t)``:

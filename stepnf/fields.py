@@ -10,7 +10,7 @@ in the model's length unit per unit of modal amplitude (or its square), named
 ``phi``
     the mass-normalised mode shape (``phi^T M phi = 1``).
 ``dnf_a_bar``, ``dnf_w2_b_bar``
-    the direct normal form's a_bar and ``w_p^2 b_bar`` (DESIGN.md, Eq. 9-10):
+    the direct normal form's a_bar and ``w_p^2 b_bar`` (docs/design.md, Eq. 9-10):
     on the backbone ``x(t) = a cos(wt) phi + a^2 [cos^2(wt) a_bar +
     sin^2(wt) w2_b_bar] + O(a^3)`` (:mod:`stepnf.evaluators`).
 ``md_theta``, ``smd_theta``

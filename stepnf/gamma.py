@@ -1,7 +1,7 @@
 """Gamma of any structure: the backbone per squared amplitude in thicknesses.
 
 ``w_NL / w = 1 + Gamma (W_max / h)^2`` with ``Gamma = T (h / W_max)^2``
-(DESIGN.md, "Comparing models"): ``T`` is the backbone coefficient of the
+(docs/design.md, "Comparing models"): ``T`` is the backbone coefficient of the
 M-normalised mode shape ``phi`` (``w_NL = w (1 + T a^2)``), ``W_max`` the
 largest transverse displacement of ``phi`` and ``h`` a thickness, both in
 model length units, so Gamma is free of the mode's normalisation and of the

@@ -1,4 +1,4 @@
-"""Nondimensional figures of shallow spherical shells (DESIGN.md, "Comparing models").
+"""Nondimensional figures of shallow spherical shells (docs/design.md, "Comparing models").
 
 * aspect ratio ``kappa = a^4 / (R^2 h^2)`` (0 for the flat plate, R = inf);
 * nondimensional frequency ``w_bar = w a^2 sqrt(rho h / D)``, ``D = E h^3 / (12 (1 - nu^2))``;

@@ -13,7 +13,7 @@ backbone is ``w_NL = w (1 + 3 beta/(8 w^2) a^2)``. With ``w^2 = EI int phi''^2 /
 
 = 0.269735, free of E, rho, L, h and the width. No other mode changes it at this order: the beam
 has no quadratic term once the axial field is condensed (its effect is the N above), and cubic
-couplings to other modes do not enter T (DESIGN.md). The 3D solid differs by transverse shear and
+couplings to other modes do not enter T (docs/design.md). The 3D solid differs by transverse shear and
 the restrained Poisson contraction at the clamps, O(h/L) and O((h/L)^2): within 1% at L/h = 100.
 """
 from __future__ import annotations

@@ -80,7 +80,7 @@ def check_files(paths, stem: Path, ad, K, M, Phi, omega, modes, Gvs):
         # mass norm: phi is M-normalised by the eigen-solver; what is left is the round-off of the n-term
         # sum phi^T M phi (n ~ 400-600: a few 1e-16 relative; measured 2.2e-16); 1e-12 leaves a margin of 1e3+
         assert float(dof["phi"] @ (M @ dof["phi"])) == pytest.approx(1.0, abs=1e-12)
-        # a_bar (with w2_b_bar) solves its two defining systems (DESIGN.md, Eq. 9-10, clamped: no rigid modes):
+        # a_bar (with w2_b_bar) solves its two defining systems (docs/design.md, Eq. 9-10, clamped: no rigid modes):
         #   K (a_bar + w^2 b_bar) = -Gv,  (K - 4 w^2 M)(a_bar - w^2 b_bar) = -Gv.
         # A backward-stable direct solve (LU with partial pivoting: dense LAPACK at these sizes, else MUMPS or
         # SuperLU) leaves a normwise backward error of a few eps times the pivot growth: measured 1.1e-16 ..

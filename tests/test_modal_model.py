@@ -47,7 +47,7 @@ def test_modal_model_json(tmp_path, capsys, monkeypatch):
     assert doc["kappa"] == 4.0
     (m,) = doc["modes"]
     assert m["label"] == [0, 1] and m["index"] == 0 and m["rho"] == pytest.approx(3.0)
-    # closed-form NF with both modes (DESIGN.md table, corrected denominators)
+    # closed-form NF with both modes (docs/design.md table, corrected denominators)
     w, ws, g1, g2, h = 1.0, 3.0, 0.4, 0.7, 0.5
     C4 = h - 2 * g1**2 * (w**2 - 2 * w**2) / (w**2 * (w**2 - 4 * w**2)) \
         - 2 * g2**2 * (ws**2 - 2 * w**2) / (ws**2 * (ws**2 - 4 * w**2))

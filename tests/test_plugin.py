@@ -11,7 +11,7 @@ its entry point, the plugin's own conformance test passes under pytest,
 conservativeness check alone, and ``stepnf run truss.toml --json`` gives T of
 both master modes as an independent computation does (per-bar loops for M, K,
 G and H from the truss's nodes and bars, dense eigen-solve and the direct
-normal form of docs DESIGN.md Eq. 9-10). Both packages are installed from
+normal form of docs/design.md Eq. 9-10). Both packages are installed from
 copies in the temporary folder, so nothing (build/, *.egg-info) is written into
 the checkout.
 

@@ -6,7 +6,7 @@ For the von Karman shell model (:class:`stepnf.models.VonKarmanShell`) on a grid
 * ``T_p`` by NF (normal form, all modes of the model), MD and SMD (Table 1 of the
   paper, :mod:`stepnf.evaluators`), in the model's normalisation (``int phi^2 dS = 1``
   over the unit disk, nondimensional time): ``w_NL = w_p (1 + T_p a^2)``;
-* ``Gamma = T_p / max|phi_p|^2`` (``w_NL / w_p = 1 + Gamma (W_max / h)^2``, DESIGN.md);
+* ``Gamma = T_p / max|phi_p|^2`` (``w_NL / w_p = 1 + Gamma (W_max / h)^2``, docs/design.md);
 * ``rho_p`` (paper Eq. 8) and the mode it is attained for, as ``stepnf run`` computes it
   (:func:`stepnf.diagnostics.slow_fast_ratio`): over the slave modes the master drives
   (``g^s_pp != 0``), degenerate twins excluded; at kappa = 0 (g = 0) over every non-twin
