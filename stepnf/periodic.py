@@ -108,13 +108,14 @@ class Shooting:
     M-normalised; ``omega`` its angular frequency; ``forces(U)`` (optional) the forces (m, n) of a
     batch of fields (m, n) in one call (the implicit integrator sends its stages together);
     ``integrator`` ``"explicit"`` (DOP853), ``"implicit"`` (Gauss-Legendre) or ``"auto"`` (implicit
-    when ``w_max / omega`` > :data:`STIFF_RATIO`: :attr:`method`, :attr:`stiffness_ratio`).
+    when ``w_max / omega`` > :data:`STIFF_RATIO`: :attr:`method`, :attr:`stiffness_ratio`); ``w_max`` the
+    model's highest frequency when the caller knows it (else :func:`highest_frequency` of K, M).
     :attr:`force_evaluations` counts the fields sent to ``f``/``forces`` (central differences included).
     """
 
     def __init__(self, M, K, f: Force, phi: np.ndarray, omega: float, *, tangent: Callable | None = None,
                  rtol: float = 1e-12, jac_rtol: float = 1e-9, forces: Callable | None = None,
-                 integrator: str = "auto", steps: int = IMPLICIT_STEPS):
+                 integrator: str = "auto", steps: int = IMPLICIT_STEPS, w_max: float | None = None):
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {list(INTEGRATORS)}, got {integrator!r}")
         self.n = len(phi)
@@ -134,7 +135,7 @@ class Shooting:
         else:
             cho = sla.cho_factor(np.asarray(M, dtype=float))
             self.Minv = lambda b: sla.cho_solve(cho, b)
-        self.stiffness_ratio = highest_frequency(K, M) / self.omega
+        self.stiffness_ratio = (highest_frequency(K, M) if w_max is None else float(w_max)) / self.omega
         self.method = shooting_method(integrator, self.stiffness_ratio)
         self.steps = 2 * max(int(np.ceil(steps / 2)), 1)  # even: T / 2 is a node
         self._gl = None

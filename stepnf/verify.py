@@ -128,18 +128,19 @@ class Check:
 
 def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float, *,
                 tangent: Callable | None = None, samples: int = 32, forces: Callable | None = None,
-                integrator: str = "auto") -> Check:
+                integrator: str = "auto", w_max: float | None = None) -> Check:
     """The brake orbit of amplitude ``A`` by shooting, from the parametrisation's guess.
 
     ``forces`` the batched internal forces (the implicit integrator sends its stages in one call);
-    ``integrator`` as :class:`stepnf.periodic.Shooting` (``"auto"``: implicit for a stiff model).
+    ``integrator`` as :class:`stepnf.periodic.Shooting` (``"auto"``: implicit for a stiff model); ``w_max``
+    the model's highest frequency when known (:func:`stepnf.periodic.highest_frequency`; else computed).
     """
     from .periodic import Shooting
 
     t0 = time.perf_counter()
     bb = res.backbone()
     rho = bb.rho_at(A)
-    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent, forces=forces, integrator=integrator)
+    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent, forces=forces, integrator=integrator, w_max=w_max)
     orb = sh.at_amplitude(A, guess=(res.displacement(0.0, rho), 2 * np.pi / bb.frequency(rho)))
     states = sh.samples(orb.x0, orb.period, samples)
     chart = Chart(res, K, M)
@@ -311,7 +312,7 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                     if shooting:
                         chk = by_shooting(res, K, M, adapter.internal_force, A, forces=adapter.internal_forces,
                                           tangent=(lambda u: tangent(u).toarray()) if tangent else None,
-                                          integrator=integrator)
+                                          integrator=integrator, w_max=w_max)
                     else:
                         chk = by_integration(res, K, M, adapter.internal_forces, A, periods=periods, rtol=rtol,
                                              tangent=tangent)

@@ -9,6 +9,7 @@ missing required tool stays skipped, so that the other modules still run (a fail
 "Interrupted: 1 error during collection"), and the run fails at its end with a line naming the module and
 the tool.
 """
+import os
 import sys
 from pathlib import Path
 
@@ -90,3 +91,12 @@ def pytest_sessionfinish(session, exitstatus):
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
     for line in config.stash.get(PROMISED_MODULES, []):
         terminalreporter.write_line(f"FAILED (module not run) {line}", red=True)
+
+
+@pytest.fixture
+def umask000():
+    """The process's umask 000 during the test (what a careless shell profile sets): folders that must be private
+    are checked to be created 0700 all the same."""
+    old = os.umask(0)
+    yield
+    os.umask(old)

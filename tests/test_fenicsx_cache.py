@@ -225,13 +225,6 @@ def mode(p: Path) -> int:
     return p.stat().st_mode & 0o777
 
 
-@pytest.fixture
-def umask000():
-    old = os.umask(0)
-    yield
-    os.umask(old)
-
-
 def test_cache_folders_are_created_0700_whatever_the_umask(env, umask000, monkeypatch):
     """Under umask 000 the cache (compiled .so files the next run loads) was created world-writable."""
     cache = _compat.cache_dir()

@@ -154,11 +154,7 @@ def test_a_checkpoint_of_other_tensors_is_not_reused(tmp_path, monkeypatch, caps
 
 def test_an_unchanged_rerun_still_resumes_and_says_nothing(tmp_path, monkeypatch, capsys):
     """The model key does not get in the way of a real resume: the same scene and file, the stored forces reused."""
-    use_solver(monkeypatch, lambda name: Crashing)
-    toml = write_scene(tmp_path)
-    Crashing.budget, Crashing.seen = 80, 0
-    assert run_json(capsys, toml)[0] == 3
-    Crashing.budget, Crashing.seen = 10**9, 0
+    toml, _ = killed_once(tmp_path, monkeypatch, capsys)
     code, doc, err = run_json(capsys, toml)
     assert code == 0, err
     assert doc["counts"]["force_evaluations_reused"] == 72 and "another model" not in err
@@ -166,15 +162,10 @@ def test_an_unchanged_rerun_still_resumes_and_says_nothing(tmp_path, monkeypatch
 
 def test_a_checkpoint_without_a_model_key_is_not_reused(tmp_path, monkeypatch, capsys):
     """Chunks written by an earlier stepnf (no model key beside them) cannot be trusted: recomputed, and said."""
-    use_solver(monkeypatch, lambda name: Crashing)
-    toml = write_scene(tmp_path)
-    Crashing.budget, Crashing.seen = 80, 0
-    assert run_json(capsys, toml)[0] == 3
-    partial = tmp_path / "out" / ".s.partial"
+    toml, partial = killed_once(tmp_path, monkeypatch, capsys)
     for f in partial.iterdir():
         if not f.name.endswith(".npz"):
             f.unlink()  # what an earlier stepnf left: the chunks alone
-    Crashing.budget, Crashing.seen = 10**9, 0
     code, doc, err = run_json(capsys, toml)
     assert code == 0, err
     assert doc["counts"]["force_evaluations_reused"] == 0
@@ -245,15 +236,6 @@ def test_a_reduced_chunk_of_another_width_is_recomputed(tmp_path, monkeypatch, c
 
 
 # ---------------------------------------------------------------- the checkpoint folder is private (review item 5)
-@pytest.fixture
-def umask000():
-    import os
-
-    old = os.umask(0)
-    yield
-    os.umask(old)
-
-
 def killed_once(folder, monkeypatch, capsys):
     """A scene killed after 80 fields: its checkpoint (two chunks, 72 fields) is left in out/.s.partial."""
     use_solver(monkeypatch, lambda name: Crashing)

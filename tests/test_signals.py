@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from stepnf_polynomial import save_system
+from plugins import fake_plugin
 from systems import random_system
 
 TESTS = Path(__file__).resolve().parent
@@ -213,12 +214,7 @@ def test_sigterm_to_a_sweep_closes_its_dask_cluster_and_the_rerun_resumes(tmp_pa
     from stepnf.sweep import read_store
     from stepnf.errors import StoreError
 
-    site = tmp_path / "site"
-    (site / "slowmodel-0.1.dist-info").mkdir(parents=True)
-    (site / "slowmodel.py").write_text(PLUGIN)
-    (site / "slowmodel-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: slowmodel\nVersion: 0.1\n")
-    (site / "slowmodel-0.1.dist-info" / "entry_points.txt").write_text("[stepnf.solvers]\nslow = slowmodel:Slow\n")
-    env = {**os.environ, "PYTHONPATH": str(site) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = fake_plugin(tmp_path / "site", "slowmodel", PLUGIN, "slow = slowmodel:Slow")
     sweep = write_sweep(tmp_path)
     store = tmp_path / "out" / "demo.h5"
     cmd = [sys.executable, "-m", "stepnf", "sweep", str(sweep), "--quiet"]
@@ -271,19 +267,14 @@ SLOWEXT = textwrap.dedent("""
 
 
 def test_sigterm_to_a_sweep_kills_the_solvers_its_dask_workers_run(tmp_path):
-    site = tmp_path / "site"
-    (site / "slowext-0.1.dist-info").mkdir(parents=True)
-    (site / "slowext.py").write_text(SLOWEXT)
-    (site / "slowext-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: slowext\nVersion: 0.1\n")
-    (site / "slowext-0.1.dist-info" / "entry_points.txt").write_text("[stepnf.solvers]\nslowext = slowext:SlowExt\n")
+    plugin_env = fake_plugin(tmp_path / "site", "slowext", SLOWEXT, "slowext = slowext:SlowExt")
     save_system(tmp_path / "s.npz", *random_system(6, seed=2))
     (tmp_path / "base.toml").write_text('[model]\nsolver = "slowext"\nfile = "s.npz"\n'
                                         '[analysis]\nmaster_modes = [0]\nmethods = ["nf"]\nretained_modes = 4\n')
     (tmp_path / "sweep.toml").write_text('[sweep]\nname = "demo"\nbase = "base.toml"\n[sweep.vary]\n'
                                          '"analysis.retained_modes" = [4, 5]\n[sweep.dask]\nn_workers = 2\n'
                                          '[output]\ndir = "out"\n')
-    env = {**os.environ, "SLOWEXT_DIR": str(tmp_path),
-           "PYTHONPATH": str(site) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    env = {**plugin_env, "SLOWEXT_DIR": str(tmp_path)}
     cmd = [sys.executable, "-m", "stepnf", "sweep", str(tmp_path / "sweep.toml"), "--quiet", "--allow-programs"]
     proc = subprocess.Popen(cmd, env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)

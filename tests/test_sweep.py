@@ -11,6 +11,8 @@ import pytest
 from stepnf.errors import SceneError, StoreError
 from stepnf.sweep import load_sweep, read_store, run_case
 
+from plugins import fake_plugin
+
 PLUGIN = textwrap.dedent('''
     import os
     import time
@@ -42,13 +44,7 @@ PLUGIN = textwrap.dedent('''
 @pytest.fixture
 def plugin_env(tmp_path):
     site = tmp_path / "site"
-    (site / "slowmodel-0.1.dist-info").mkdir(parents=True)
-    (site / "slowmodel.py").write_text(PLUGIN)
-    (site / "slowmodel-0.1.dist-info" / "METADATA").write_text("Metadata-Version: 2.1\nName: slowmodel\nVersion: 0.1\n")
-    (site / "slowmodel-0.1.dist-info" / "entry_points.txt").write_text("[stepnf.solvers]\nslow = slowmodel:Slow\n")
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(site) + os.pathsep + env.get("PYTHONPATH", "")
-    return site, env
+    return site, fake_plugin(site, "slowmodel", PLUGIN, "slow = slowmodel:Slow")
 
 
 def write_sweep(tmp_path):
