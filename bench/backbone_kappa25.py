@@ -5,7 +5,7 @@
   in frequency and 3e-2 in shape),
   W_max/h measured on each, read from ``bench/results/backbone_order7.json`` (``--order3d 7``, written
   by ``bench/backbone_order7.py``) or computed here in a subprocess (``--order3d 9``).
-* von Karman: the same kappa and nu, the modal DPIM (:mod:`stepnf.stages.modal_coordinates`) over the
+* von Karman: the same kappa and nu, the modal DPIM (:mod:`stepnf.pipeline.modal_coordinates`) over the
   modes each master drives, with (k_max, n_transverse, n_galerkin, n_airy) = (16, 16, 28, 40), orders 7
   and 15, and the default model (8, 8, 20, 24) at order 15 to show the truncation's effect.
 
@@ -54,9 +54,9 @@ def three_d(order: int) -> dict:
 def vk_curve(model, label, order: int) -> dict:
     """The von Karman modal DPIM backbone of mode ``label``: w_NL/w on 50 points up to W_max/h = 1 and at
     :data:`TARGETS` of W_max/h, its validity limit in W_max/h, T."""
-    from stepnf.backbone_report import WMax
-    from stepnf.stages.modal_coordinates import modal_dpim
-    from stepnf.stages.modal_forces import modal_system
+    from stepnf.dpim.backbone_report import WMax
+    from stepnf.pipeline.modal_coordinates import modal_dpim
+    from stepnf.pipeline.modal_forces import modal_system
 
     s = modal_system(model, model.index(*label))
     res = modal_dpim(s, order, model.labels())

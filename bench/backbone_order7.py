@@ -38,8 +38,8 @@ def child(kind: str, order: int) -> dict:
     import resource
     import tomllib
 
-    from stepnf.pipeline import run_scene
-    from stepnf.scene import parse_scene
+    from stepnf.pipeline.run import run_scene
+    from stepnf.scene.parse import parse_scene
 
     src = ROOT / "examples" / "shell_kappa25.toml"
     data = tomllib.loads(src.read_text())

@@ -27,8 +27,8 @@ SIZES = {"10k": (10, 4), "40k": (20, 10), "100k": (32, 16)}  # (n_core, n_ring) 
 def run_one(n_core: int, n_ring: int) -> dict:
     import tomllib
 
-    from stepnf.pipeline import run_scene
-    from stepnf.scene import parse_scene
+    from stepnf.pipeline.run import run_scene
+    from stepnf.scene.parse import parse_scene
 
     data = tomllib.loads((ROOT / "examples" / "shell_kappa25.toml").read_text())
     data["model"]["geometry"].update({"n_core": n_core, "n_ring": n_ring})

@@ -18,8 +18,8 @@ SOLVERS = {"fenicsx": "hex27", "calculix": "hex20"}
 
 
 def main() -> None:
-    from stepnf.pipeline import run_scene
-    from stepnf.scene import parse_scene
+    from stepnf.pipeline.run import run_scene
+    from stepnf.scene.parse import parse_scene
 
     base = tomllib.loads((ROOT / "examples" / "plate.toml").read_text())
     base["analysis"].update({"methods": ["dnf"], "master_modes": ["(2,0)", "(0,1)", "(3,0)"]})

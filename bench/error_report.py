@@ -7,7 +7,7 @@ Writes ``docs/report/error_vs_runtime.md``, ``docs/report/error_vs_runtime.json`
 and PNG plots next to them. For the flat plate (R = inf) and the kappa = 25
 shell (R = 1.5 m) of the paper (a = 0.15 m, h = 3 mm, E = 104 GPa, nu = 0.3,
 rho = 4400 kg/m^3) and the master modes (2,0) and (0,1), every point is one
-``stepnf.pipeline.run_scene`` call on a hex27 cap; its error is
+``stepnf.pipeline.run.run_scene`` call on a hex27 cap; its error is
 ``|Gamma - Gamma_ref| / |Gamma_ref|`` where ``Gamma_ref`` is the full-order
 DNF on the reference (finest) mesh. Gamma is the coefficient of
 ``(W_max/h)^2`` in ``w_NL / w`` (dimensionless, independent of the mode
@@ -16,7 +16,7 @@ normalisation and so comparable across meshes). Run time is the pipeline's
 measured after a warm-up run so that FEniCSx's JIT compilation is not counted.
 
 The JSON also holds ``reference_subset``: a few cheap points on the coarse
-mesh that ``tests/test_report.py`` recomputes, so the numbers stated by the
+mesh that ``tests/report/test_report.py`` recomputes, so the numbers stated by the
 report are the ones the tests check.
 """
 from __future__ import annotations
@@ -41,7 +41,7 @@ MASTERS = ["(2,0)", "(0,1)"]
 N_RETAINED = (5, 10, 20, 40)
 N_SERIES = (5, 10, 20, 40, 80, 160, 320)  # modal NF convergence series (targeted STEP, medium mesh)
 
-# the cheap subset re-run by tests/test_report.py: (shape, mesh, family, n)
+# the cheap subset re-run by tests/report/test_report.py: (shape, mesh, family, n)
 SUBSET = [("plate", "coarse", "dnf", None), ("plate", "coarse", "nf_targeted", 10),
           ("plate", "coarse", "nf_fullstep", 5), ("plate", "coarse", "md_full", None),
           ("plate", "coarse", "smd_full", None), ("shell_kappa25", "coarse", "dnf", None),
@@ -60,8 +60,8 @@ FAMILIES = {
 
 
 def make_scene(shape: str, mesh: tuple[int, int], family: str, n: int | None):
-    """The :class:`stepnf.scene.Scene` of one point (no output files)."""
-    from stepnf.scene import parse_scene
+    """The :class:`stepnf.scene.parse.Scene` of one point (no output files)."""
+    from stepnf.scene.parse import parse_scene
 
     methods, tensors = FAMILIES[family]
     an: dict[str, Any] = {"master_modes": list(MASTERS), "methods": methods, "tensors": tensors}
@@ -79,7 +79,7 @@ def make_scene(shape: str, mesh: tuple[int, int], family: str, n: int | None):
 def run_point(shape: str, mesh_name: str, family: str, n: int | None, mesh: tuple[int, int] | None = None
               ) -> dict[str, Any]:
     """Run one point; return Gamma and T of each master, counts and run time."""
-    from stepnf.pipeline import run_scene
+    from stepnf.pipeline.run import run_scene
 
     mesh = mesh or MESHES[mesh_name]
     t0 = time.perf_counter()
@@ -117,9 +117,9 @@ def truncation_share(shape: str, mesh: tuple[int, int], n_modes: int = 320) -> d
     in-plane/thickness ones among the computed modes (the rest lies above them).
     """
     import scipy.sparse as sp
-    from stepnf.linalg import PseudoInverse
-    from stepnf.modal import modal_analysis, rigid_body_fields
-    from stepnf.scene import parse_label
+    from stepnf.linalg.factorization import PseudoInverse
+    from stepnf.linalg.modal_analysis import modal_analysis, rigid_body_fields
+    from stepnf.scene.parse import parse_label
     from stepnf_fenicsx.adapter import FenicsxAdapter
 
     ad = FenicsxAdapter.cap(0.15, float(SHAPES[shape]), 0.003, E=1.04e11, nu=0.3, rho=4400.0,
@@ -206,7 +206,7 @@ COLORS = {"coarse": "tab:blue", "medium": "tab:orange", "fine": "tab:green"}
 
 
 def plots(data: dict[str, Any], out: Path) -> list[str]:
-    from stepnf.figures import pyplot, save_figure
+    from stepnf.report.figures import pyplot, save_figure
 
     plt = pyplot()
 

@@ -20,8 +20,8 @@ SCENES = {"plate": "inf", "kappa25": 1.5}
 
 
 def main() -> None:
-    from stepnf.pipeline import run_scene
-    from stepnf.scene import parse_scene
+    from stepnf.pipeline.run import run_scene
+    from stepnf.scene.parse import parse_scene
 
     base = tomllib.loads((ROOT / "examples" / "plate.toml").read_text())
     base["analysis"]["methods"] = ["dnf"]

@@ -112,10 +112,10 @@ def run_worker(n_core: int, n_ring: int, variant: str, out_dir: Path) -> None:
     """One run in this process (one rank of it under mpirun); writes ``out_dir/rank<r>.json``."""
     import tomllib
 
-    from stepnf.counters import Counters
-    from stepnf.pipeline import run_scene
-    from stepnf.progress import Progress, memory_now
-    from stepnf.scene import parse_scene
+    from stepnf.runtime.counters import Counters
+    from stepnf.pipeline.run import run_scene
+    from stepnf.runtime.progress import Progress, memory_now
+    from stepnf.scene.parse import parse_scene
 
     class StageTracker(Progress):
         """A silent Progress that knows which stages are running."""
@@ -167,7 +167,7 @@ def child_env(threads: int) -> dict[str, str]:
 
 
 def mpirun_prefix(ranks: int) -> list[str]:
-    """``mpirun -n ranks`` (Open MPI: with ``--oversubscribe``, as tests/test_mpi.py); [] for one rank."""
+    """``mpirun -n ranks`` (Open MPI: with ``--oversubscribe``, as tests/solvers/fenicsx/test_mpi.py); [] for one rank."""
     if ranks == 1:
         return []
     mpirun = shutil.which("mpirun") or shutil.which("mpiexec")

@@ -3,8 +3,8 @@
 Cases (each a polynomial scene verified at ``--amplitudes 0.4 0.8``, DPIM order 21):
 
 * ``stiff_1e2``, ``stiff_1e4``, ``stiff_1e6``: 2 dofs, modal frequencies 1 (the master) and
-  ``1.05 sqrt(ratio)`` (tests/systems.stiff_two_dof: stiffness ratio ``1.1 ratio``);
-* ``two_dof``: the scene of tests/test_verify.py (frequencies 1 and 3.6);
+  ``1.05 sqrt(ratio)`` (tests/helpers/systems.stiff_two_dof: stiffness ratio ``1.1 ratio``);
+* ``two_dof``: the scene of tests/verify/test_verify.py (frequencies 1 and 3.6);
 * ``system12``: ``examples/polynomial.toml`` (12 dofs, masters 0 and 2) with ``[analysis.backbone] order = 7``
   at its default amplitudes (1/3, 2/3 and 1 of the validity limit).
 
@@ -18,7 +18,7 @@ orbits' seconds, force fields evaluated by the shooting, the method, and the fre
 
 Writes ``bench/results/verify_stiff.json`` (keeping the rows of earlier runs for the pairs not rerun:
 ``--integrators auto`` after a change leaves the slow explicit rows as they were). Not a test: times depend on the machine and its load
-(tests/test_verify_stiff.py bounds the force evaluations instead).
+(tests/verify/test_verify_stiff.py bounds the force evaluations instead).
 """
 from __future__ import annotations
 
@@ -57,12 +57,12 @@ def write_case(case: str, folder: Path) -> tuple[Path, list[float] | None]:
     from stepnf_polynomial.adapter import save_system
 
     if case.startswith("stiff_"):
-        from systems import stiff_two_dof
+        from helpers.systems import stiff_two_dof
 
         save_system(folder / "s.npz", *stiff_two_dof(float(case.split("_")[1])))
         text, amps = SCENE.format(file="s.npz", masters=[0], retained=2, order=21), [0.4, 0.8]
     elif case == "two_dof":
-        from test_dpim import two_dof
+        from helpers.systems import two_dof
 
         save_system(folder / "s.npz", *two_dof())
         text, amps = SCENE.format(file="s.npz", masters=[0], retained=2, order=21), [0.4, 0.8]
@@ -76,8 +76,8 @@ def write_case(case: str, folder: Path) -> tuple[Path, list[float] | None]:
 
 def child(case: str, integrator: str) -> dict:
     """One verify run in this process."""
-    from stepnf import verify
-    from stepnf.scene import load_scene
+    from stepnf.verify import command as verify
+    from stepnf.scene.parse import load_scene
 
     with tempfile.TemporaryDirectory() as tmp:
         path, amps = write_case(case, Path(tmp))

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from stepnf.evaluators import nf_modal
+from stepnf.nf.evaluators import nf_modal
 from stepnf.models import VonKarmanShell
 from stepnf.models.vonkarman import DEFAULTS
 

@@ -2,7 +2,7 @@
 
 Usage: .venv/bin/python bench/vonkarman_sweep.py [--n-kappa 200] [--kappa-max 100] [--out DIR]
 
-Runs :func:`stepnf.curves.compute_curves` for the six modes of Fig. 3 (T_p by NF, MD,
+Runs :func:`stepnf.report.curves.compute_curves` for the six modes of Fig. 3 (T_p by NF, MD,
 SMD, rho_p, Gamma, flags; one model per kappa), then writes HDF5/CSV and the PNGs
 (into DIR, default a temporary folder), prints a table of the wall times and writes
 them to ``bench/results/vonkarman_sweep.json``. The issue's target: the whole sweep
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stepnf.curves import CurveOptions, compute_curves, format_summary, write_csv, write_hdf5
-from stepnf.curves import plot_frequencies, plot_nonlinearity
+from stepnf.report.curves import CurveOptions, compute_curves, format_summary, write_csv, write_hdf5
+from stepnf.report.curves import plot_frequencies, plot_nonlinearity
 
 TARGET_SECONDS = 120.0
 

@@ -11,7 +11,7 @@ import time
 
 import numpy as np
 
-from stepnf.evaluators import md_modal, nf_modal, smd_modal
+from stepnf.nf.evaluators import md_modal, nf_modal, smd_modal
 from stepnf.models import VonKarmanShell
 
 MODES = [(2, 0), (3, 0), (4, 0), (0, 1), (0, 2), (2, 1)]

@@ -22,7 +22,7 @@ RUN rm -rf .venv .cache \
  && .venv/bin/python -m compileall -q stepnf solvers
 # fail the build early if run_aster or the adapter is missing
 RUN command -v run_aster \
- && .venv/bin/python -c "import stepnf_code_aster; from stepnf.registry import installed_solvers; print(sorted(installed_solvers()))"
+ && .venv/bin/python -c "import stepnf_code_aster; from stepnf.plugin.registry import installed_solvers; print(sorted(installed_solvers()))"
 
 # the mount point of the scenes' folder, present also in a read-only container
 RUN mkdir -p /scenes

@@ -3,7 +3,7 @@
 # (the FEniCSx form cache then falls back to $XDG_CACHE_HOME or the temporary folder, with a note).
 #   docker build -f docker/fenicsx-calculix.Dockerfile -t stepnf:fenicsx-calculix .
 #   docker run --rm -v "$PWD/examples:/scenes" stepnf:fenicsx-calculix run /scenes/<scene>.toml
-# BASE: any Debian 12 image; tests/test_images.py builds with podman from a local debootstrap
+# BASE: any Debian 12 image; tests/env/test_images.py builds with podman from a local debootstrap
 # import, --build-arg BASE=localhost/debian:12 (see docker/README.md).
 ARG BASE=debian:12
 FROM ${BASE}
@@ -29,7 +29,7 @@ RUN rm -rf .venv .cache \
  && .venv/bin/python -m compileall -q stepnf solvers
 # fail the build early if a solver is missing
 RUN command -v ccx \
- && .venv/bin/python -c "import stepnf_calculix, stepnf_fenicsx; from stepnf.registry import installed_solvers; print(sorted(installed_solvers()))"
+ && .venv/bin/python -c "import stepnf_calculix, stepnf_fenicsx; from stepnf.plugin.registry import installed_solvers; print(sorted(installed_solvers()))"
 
 # the mount point of the scenes' folder, present also in a read-only container
 RUN mkdir -p /scenes

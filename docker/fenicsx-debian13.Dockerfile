@@ -4,7 +4,7 @@
 # cache then falls back to $XDG_CACHE_HOME or the temporary folder, with a note).
 #   docker build -f docker/fenicsx-debian13.Dockerfile -t stepnf:fenicsx-debian13 .
 #   docker run --rm -v "$PWD/examples:/scenes" stepnf:fenicsx-debian13 run /scenes/<scene>.toml
-# BASE: any Debian 13 image; tests/test_images.py builds with podman from a local debootstrap
+# BASE: any Debian 13 image; tests/env/test_images.py builds with podman from a local debootstrap
 # import, --build-arg BASE=localhost/debian:13 (see docker/README.md).
 ARG BASE=debian:13
 FROM ${BASE}
@@ -26,7 +26,7 @@ RUN rm -rf .venv .cache \
  && rm -rf /var/lib/apt/lists/* /root/.cache/pip \
  && .venv/bin/python -m compileall -q stepnf solvers
 # fail the build early if FEniCSx 0.9 or the adapter is missing
-RUN .venv/bin/python -c "import dolfinx, stepnf_fenicsx; assert dolfinx.__version__.startswith('0.9'), dolfinx.__version__; from stepnf.registry import installed_solvers; print(dolfinx.__version__, sorted(installed_solvers()))"
+RUN .venv/bin/python -c "import dolfinx, stepnf_fenicsx; assert dolfinx.__version__.startswith('0.9'), dolfinx.__version__; from stepnf.plugin.registry import installed_solvers; print(dolfinx.__version__, sorted(installed_solvers()))"
 
 RUN mkdir -p /scenes
 ENV PATH=/opt/stepnf/.venv/bin:$PATH

@@ -11,6 +11,8 @@
 #                                  podman (root file systems and container images built by the
 #                                  slow image tests), python3-vtk9 (the VTK reader of ParaView,
 #                                  which reads the field files back), mpirun (mpi-default-bin)
+#                                  nbclient, ipykernel, nbformat, pandas (the notebook
+#                                  docs/plate.ipynb, executed by tests/api/test_notebook.py)
 #                                  (tests/required_tools.txt lists what the tests require)
 # STEPNF_SETUP_DRY_RUN=1 prints the Debian packages it asks for and, after apt-get update, has
 # apt-get simulate installing the missing ones (so an unknown package fails here too), then stops:
@@ -32,7 +34,12 @@ cd "$root"
 apt_packages=(python3-venv python3-setuptools python3-wheel python3-numpy python3-scipy python3-h5py
   python3-matplotlib python3-meshio python3-pytest python3-dask python3-distributed
   python3-dolfinx-real libopenblas0)  # OpenBLAS, not the reference BLAS a minimal system falls back to
-if [ "$with_tests" -eq 1 ]; then apt_packages+=(debootstrap podman python3-vtk9 mpi-default-bin); fi
+if [ "$with_tests" -eq 1 ]; then
+  # python3-nbclient, python3-ipykernel, python3-nbformat: the suite executes docs/plate.ipynb;
+  # python3-pandas: stepnf's optional DataFrame view (RunView.to_dataframe), used by that notebook
+  apt_packages+=(debootstrap podman python3-vtk9 mpi-default-bin
+    python3-nbclient python3-ipykernel python3-nbformat python3-pandas)
+fi
 installed() {
   local status
   status="$(dpkg-query -W -f='${Status}' "$1" 2>/dev/null)" || return 1

@@ -14,40 +14,49 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from .limits import one_blas_thread
+from stepnf.runtime.limits import one_blas_thread
 
-one_blas_thread()  # under `ulimit -v`, before numpy starts OpenBLAS (stepnf.limits)
+one_blas_thread()  # under `ulimit -v`, before numpy starts OpenBLAS (stepnf.runtime.limits)
 
 from typing import TYPE_CHECKING  # noqa: E402
 
-from .errors import AdapterError, SceneError, SolverRunError, StepnfError, UnknownSolverError  # noqa: E402
+from stepnf.errors import AdapterError, SceneError, SolverRunError, StepnfError, UnknownSolverError  # noqa: E402
 
 #: The names below import numpy and scipy: loaded when first asked for (``stepnf.SolverAdapter``), so that
-#: ``import stepnf`` itself imports nothing heavy and the command line (:mod:`stepnf.console`) can turn a
+#: ``import stepnf`` itself imports nothing heavy and the command line (:mod:`stepnf.cli.console`) can turn a
 #: memory limit too low for numpy into a message.
-_LAZY = {"SolverAdapter": "adapter", "MethodResult": "backbone", "backbone_T": "backbone",
-         "ModalModel": "modal_model"}
+_LAZY = {"SolverAdapter": "plugin.adapter", "MethodResult": "nf.coefficient", "backbone_T": "nf.coefficient",
+         "ModalModel": "plugin.modal_model", "run": "api.runner", "open": "api.reader", "RunView": "api.view"}
+#: Exported under another name than the one it has in its module.
+_RENAMED = {"open": "open_run"}
 
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers
-    from .adapter import SolverAdapter
-    from .backbone import MethodResult, backbone_T
-    from .modal_model import ModalModel
+    from stepnf.plugin.adapter import SolverAdapter
+    from stepnf.nf.coefficient import MethodResult, backbone_T
+    from stepnf.plugin.modal_model import ModalModel
+    from stepnf.api.reader import open_run as open  # noqa: A001 - stepnf.open, as io.open or h5py.File
+    from stepnf.api.runner import run
+    from stepnf.api.view import RunView
 
 
 def __getattr__(name: str):
-    """``stepnf.SolverAdapter`` and the other :data:`_LAZY` names, imported on first use."""
+    """``stepnf.SolverAdapter``, ``stepnf.run``, ``stepnf.open`` and the other :data:`_LAZY` names, imported on
+    first use."""
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     from importlib import import_module
 
-    value = getattr(import_module(f".{module}", __name__), name)
+    value = getattr(import_module(f".{module}", __name__), _RENAMED.get(name, name))
     globals()[name] = value
     return value
 
 
+#: ``open`` is left out on purpose: ``from stepnf import *`` must not replace the built-in ``open``
+#: (``stepnf.open`` is there all the same).
 __all__ = [
+    "run", "RunView",
     "SolverAdapter", "ModalModel", "MethodResult", "backbone_T",
     "StepnfError", "SceneError", "AdapterError", "SolverRunError", "UnknownSolverError",
     "__version__",

@@ -2,8 +2,9 @@
 
 A flag is a dict ``{"kind": ..., "message": ..., optional "mode", "value", ...}`` attached to a
 method's result (``MethodResult.flags``), to a master mode (``ModeResult.flags``), to a backbone
-block (``modes[i].backbone.flags``) or to the run (``RunResult.flags``). Every kind any module emits
-is declared here (``tests/test_flags.py`` checks it by reading the sources), with
+block (``modes[i].backbone.flags``) or to the run (``RunResult.flags``). Every module builds its flags
+with :func:`new_flag`, which refuses a kind not declared here (``tests/nf/test_flags.py`` also checks the
+sources). Each kind is declared with
 
 * ``printed``: where the table shows its message: ``"line"`` (a ``flag [p method]: ...`` line
   under the table), ``"note"`` (a ``note: ...`` line, run flags), ``"block"`` (in the backbone
@@ -109,6 +110,19 @@ def is_known(name: str) -> bool:
     return kind_of({"kind": name}) is not None
 
 
+class FlagKindError(LookupError):
+    """A flag of a kind this catalogue does not declare: a bug in stepnf (an internal error), never the user's."""
+
+
+def new_flag(kind: str, **fields: Any) -> dict[str, Any]:
+    """The flag ``{"kind": kind, **fields}``, its keys in the order given; every module builds its flags with it,
+    so a kind cannot be misspelt: one the catalogue does not declare (:func:`is_known`) is a
+    :class:`FlagKindError`."""
+    if not is_known(kind):
+        raise FlagKindError(f"flag kind {kind!r} is not declared in stepnf.flags; declared: {sorted(CATALOGUE)}")
+    return {"kind": kind, **fields}
+
+
 def printed_under_table(flag: Mapping[str, Any]) -> bool:
     """Whether the table prints ``flag``'s message on a line of its own under the table."""
     k = kind_of(flag)
@@ -133,7 +147,7 @@ def _value(flag: Mapping[str, Any]) -> float | None:
 
 
 def t_unusable(r: Any) -> tuple[str, str] | None:
-    """``(kind, reason)`` when the table must show ``r.T`` (a :class:`stepnf.backbone.MethodResult`) as
+    """``(kind, reason)`` when the table must show ``r.T`` (a :class:`stepnf.nf.coefficient.MethodResult`) as
     n/a, else None. The reasons, in this order: T infinite or NaN (the method diverges); a flag whose
     kind is ``t_na = "always"``; the retained modes carry less than :data:`TRUNCATION_UNUSABLE` of
     G(phi_p, phi_p) (``r.extra["captured_fraction"]`` or the ``modal_truncation`` flag's value); T

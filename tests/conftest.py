@@ -1,7 +1,7 @@
 """Shared pytest set-up: tests/ on sys.path, and no test skipped for want of a tool the set-up installs.
 
 The tools ``bash scripts/setup.sh tests`` installs on this Debian release (``tests/required_tools.txt``,
-see ``tests/required.py``) are listed in the header of every run. A test marked ``requires(...)``
+see ``tests/helpers/required.py``) are listed in the header of every run. A test marked ``requires(...)``
 fails when one of them is missing (skips where the release does not promise it, as ccx on Debian 13),
 and any other skip whose reason names a required tool that is missing (``importorskip``, an inline
 ``pytest.skip``) is turned into a failure at run time (issue 29). A module skipped at collection for a
@@ -15,10 +15,10 @@ from pathlib import Path
 
 import pytest
 
-# tests/systems.py and friends
+# tests/helpers (from helpers.systems import ...)
 sys.path.insert(0, str(Path(__file__).parent))
 
-import required  # noqa: E402
+from helpers import required  # noqa: E402
 
 
 def pytest_configure(config):

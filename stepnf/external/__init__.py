@@ -24,7 +24,7 @@ modules (:mod:`.templates`, :mod:`.process`, :mod:`.adapter`, :mod:`.keys`):
 :func:`require_files`
     Raise the same error when an expected output file is missing.
 :class:`ExternalSolverAdapter`
-    A :class:`~stepnf.adapter.SolverAdapter` base whose batch hook sends a
+    A :class:`~stepnf.plugin.adapter.SolverAdapter` base whose batch hook sends a
     whole batch of displacement fields to ONE solver run (split into chunks
     of :attr:`ExternalSolverAdapter.max_fields_per_run` when the solver limits
     it). A subclass implements :meth:`~ExternalSolverAdapter.write_force_job`
@@ -36,16 +36,29 @@ modules (:mod:`.templates`, :mod:`.process`, :mod:`.adapter`, :mod:`.keys`):
     user's mesh or a generated cap, the material) and the one build of its
     model from them. A key that names a program (:attr:`SolidFromScene.program_keys
     <stepnf.external.keys.SolidFromScene.program_keys>`: calculix ``executable``, code_aster
-    ``command`` and ``templates``) is refused unless the user allows it (:mod:`stepnf.programs`).
+    ``command`` and ``templates``) is refused unless the user allows it (:mod:`stepnf.runtime.programs`).
 """
 from __future__ import annotations
 
-from .adapter import ExternalSolverAdapter
-from .keys import EXECUTABLE, RUN_KEYS, RUN_RANGES, SolidFromScene, build_solid, check_solid_config, solid_model_keys
-from .process import (KEEP_POLICIES, RunRecord, WorkFolder, find_executable, log_tail, missing_output, require_files,
-                      run_command)
-from .templates import CommandTemplate, TemplateError
+from typing import TYPE_CHECKING
 
+from stepnf.runtime.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from stepnf.external.adapter import ExternalSolverAdapter
+    from stepnf.external.keys import (EXECUTABLE, RUN_KEYS, RUN_RANGES, SolidFromScene, build_solid, check_solid_config,
+                                      solid_model_keys)
+    from stepnf.external.process import (KEEP_POLICIES, RunRecord, WorkFolder, find_executable, log_tail, missing_output,
+                                         require_files, run_command)
+    from stepnf.external.templates import CommandTemplate, TemplateError
+
+_NAMES = {"ExternalSolverAdapter": "adapter",
+          **{n: "keys" for n in ("EXECUTABLE", "RUN_KEYS", "RUN_RANGES", "SolidFromScene", "build_solid",
+                                 "check_solid_config", "solid_model_keys")},
+          **{n: "process" for n in ("KEEP_POLICIES", "RunRecord", "WorkFolder", "find_executable", "log_tail",
+                                    "missing_output", "require_files", "run_command")},
+          "CommandTemplate": "templates", "TemplateError": "templates"}
+__getattr__ = lazy_exports(__name__, _NAMES, globals())
 __all__ = ["ExternalSolverAdapter", "EXECUTABLE", "RUN_KEYS", "RUN_RANGES", "build_solid", "check_solid_config",
            "solid_model_keys", "SolidFromScene", "KEEP_POLICIES", "RunRecord", "WorkFolder", "find_executable", "log_tail",
            "missing_output", "require_files", "run_command", "CommandTemplate", "TemplateError"]

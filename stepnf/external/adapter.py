@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import hashlib
 import threading
+import time
 import zipfile
 from pathlib import Path
 from typing import ClassVar, Sequence
@@ -10,10 +11,11 @@ from typing import ClassVar, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..adapter import SolverAdapter, nonfinite_forces, real_array
-from ..errors import SolverRunError, StepnfError, allowed
-from ..lazy_matrices import LazyMatrices
-from .process import KEEP_POLICIES, RunRecord, WorkFolder, log_tail, run_command
+from stepnf.plugin.adapter import SolverAdapter, checked_forces
+from stepnf.errors import SolverRunError, StepnfError, allowed
+from stepnf.plugin.lazy_matrices import LazyMatrices
+from stepnf.external.process import KEEP_POLICIES, RunRecord, WorkFolder, log_tail, run_command
+from stepnf.step.forces import solver_run_size
 
 #: Held while a program's notice is printed (:meth:`ExternalSolverAdapter.run`); one lock for every adapter
 #: (a module-level lock keeps adapters picklable).
@@ -50,7 +52,7 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
     #: Solver processes run at the same time, each on a share of a batch (threads wait on them).
     parallel_runs: int = 1
     #: The scene keys that named the program run (set by ``from_config`` when the user allowed them,
-    #: :mod:`stepnf.programs`): the full command is then printed on stderr before it first runs.
+    #: :mod:`stepnf.runtime.programs`): the full command is then printed on stderr before it first runs.
     program_named_by: str | None = None
     _announced: bool = False
 
@@ -74,7 +76,7 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
         raise NotImplementedError(f"{type(self).__name__} does not export its matrices")
 
     def _build_matrices(self) -> tuple[sp.spmatrix, sp.spmatrix]:
-        """K and M from one :meth:`_matrices` run (:class:`~stepnf.lazy_matrices.LazyMatrices` keeps them);
+        """K and M from one :meth:`_matrices` run (:class:`~stepnf.plugin.lazy_matrices.LazyMatrices` keeps them);
         a result file it cannot parse is a :class:`SolverRunError`."""
         try:
             self._matrices()
@@ -112,7 +114,7 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
         scene named is printed on stderr before its first run."""
         argv = [self.executable, *argv[1:]]
         if self.program_named_by and not self._announced:
-            from .. import programs
+            from stepnf.runtime import programs
 
             with _ANNOUNCING:  # parallel runs (threads): one notice, and none starts before it is printed
                 if not self._announced:
@@ -128,6 +130,16 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
         return hashlib.sha1(np.ascontiguousarray(u, dtype=float).tobytes()).digest()
 
     def _internal_forces(self, U: np.ndarray) -> np.ndarray:
+        """The forces of ``U`` (m, n): fields not cached go to runs of :func:`~stepnf.step.forces.solver_run_size`
+        fields. With a dict ``self.timings``, the wall-clock seconds are summed under ``"forces"``."""
+        t0 = time.perf_counter()
+        F = self._forces_of_runs(U)
+        timings = getattr(self, "timings", None)
+        if isinstance(timings, dict):
+            timings["forces"] = timings.get("forces", 0.0) + time.perf_counter() - t0
+        return F
+
+    def _forces_of_runs(self, U: np.ndarray) -> np.ndarray:
         keys = [self._key(u) for u in U]
         todo: list[int] = []
         pending: set[bytes] = set()
@@ -136,9 +148,7 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
                 todo.append(i)
                 pending.add(k)
         runs = max(1, int(self.parallel_runs))
-        size = max(1, -(-len(todo) // runs))  # split the batch evenly over the parallel runs
-        if self.max_fields_per_run:
-            size = min(size, int(self.max_fields_per_run))
+        size = solver_run_size(len(todo), runs, self.max_fields_per_run)  # the one batching policy
         chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
         errors: list[SolverRunError] = []
 
@@ -176,21 +186,17 @@ class ExternalSolverAdapter(LazyMatrices, SolverAdapter):
             rec = self.run(argv, wd)
             # the result files enter here: whatever is wrong with them (garbage, truncation, NaN) is a
             # solver failure that names the work folder (kept: on_error) and quotes the solver's log
-            try:
-                F = real_array(self.read_forces(wd, len(U)), "forces", self)
+            def fail(message: str) -> SolverRunError:  # a wrong shape or a NaN: the run failed
+                return SolverRunError(message, workdir=wd, log_tail=log_tail(rec.log))
+
+            try:  # the one check of forces (stepnf.plugin.adapter.checked_forces), where they are read
+                F = checked_forces(self.read_forces(wd, len(U)), len(U), self, n=U.shape[1], what="forces",
+                                   read_from=self.solver_label, fail=fail)
             except SolverRunError:
                 raise
             except (StepnfError, ValueError, KeyError, IndexError, EOFError, OSError, zipfile.BadZipFile) as exc:
                 raise SolverRunError(f"{self.solver_label}: cannot read the forces from the solver's output: "
                                      f"{exc}", workdir=wd, log_tail=log_tail(rec.log)) from None
-            if F.shape != U.shape:
-                raise SolverRunError(
-                    f"{type(self).__name__}: read forces of shape {F.shape}, expected {U.shape}",
-                    workdir=wd, log_tail=log_tail(rec.log),
-                )
-            problem = nonfinite_forces(F)
-            if problem:
-                raise SolverRunError(f"{self.solver_label}: {problem}", workdir=wd, log_tail=log_tail(rec.log))
         return F
 
     def clear_cache(self) -> None:

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from ..errors import SolverRunError, allowed
-from ..programs import which
-from ..signals import Interrupted, deferred, received, track
+from stepnf.errors import SolverRunError, allowed
+from stepnf.runtime.programs import which
+from stepnf.runtime.signals import Interrupted, deferred, received, track
 
 #: Work-folder keeping policies.
 KEEP_POLICIES = ("never", "on_error", "always")
@@ -23,7 +23,7 @@ KEEP_POLICIES = ("never", "on_error", "always")
 
 def find_executable(program: str | Path, *, what: str = "solver") -> str:
     """Absolute path of ``program`` (a name on ``PATH`` or a path), or :class:`SolverRunError`. A name is
-    looked up in the absolute folders of ``PATH`` only (:func:`stepnf.programs.which`: an empty, ``.``
+    looked up in the absolute folders of ``PATH`` only (:func:`stepnf.runtime.programs.which`: an empty, ``.``
     or relative entry would run a file of the current folder)."""
     prog = str(program)
     if os.sep in prog or (os.altsep and os.altsep in prog):
@@ -62,7 +62,7 @@ class WorkFolder:
     parent : folder in which to create it (created if needed); ``None``: the system temp folder
     prefix : name prefix of the folder
     keep : ``"never"`` (always remove), ``"on_error"`` (keep when the block raised an error; an
-        interruption, Ctrl-C or a signal (:mod:`stepnf.signals`), is none: the folder is removed), ``"always"``
+        interruption, Ctrl-C or a signal (:mod:`stepnf.runtime.signals`), is none: the folder is removed), ``"always"``
     """
 
     def __init__(self, parent: str | Path | None = None, *, prefix: str = "stepnf-", keep: str = "on_error"):
@@ -80,7 +80,7 @@ class WorkFolder:
         return self.path
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        # an interruption (Ctrl-C, a signal: stepnf.signals) is no error, nor the solver's death it caused
+        # an interruption (Ctrl-C, a signal: stepnf.runtime.signals) is no error, nor the solver's death it caused
         failed = exc_type is not None and not issubclass(exc_type, KeyboardInterrupt) and received() is None
         if self.path is None:
             return
@@ -115,12 +115,12 @@ def run_command(
     added to the current environment. On time-out the whole process group is
     killed. Raises :class:`SolverRunError` (with the work folder and the tail
     of the log) on a missing executable, a non-zero exit or a time-out. While
-    it runs the process group is registered with :mod:`stepnf.signals`: a
+    it runs the process group is registered with :mod:`stepnf.runtime.signals`: a
     SIGINT, SIGTERM or SIGHUP to stepnf kills it (the main thread then
-    unwinds with :class:`~stepnf.signals.Interrupted`; a call in another
+    unwinds with :class:`~stepnf.runtime.signals.Interrupted`; a call in another
     thread raises its :class:`SolverRunError`, and :class:`WorkFolder`
     removes the folder all the same). A signal while the solver starts waits
-    until its group is registered (:func:`~stepnf.signals.deferred`), so no
+    until its group is registered (:func:`~stepnf.runtime.signals.deferred`), so no
     solver is left running unregistered.
     """
     cwd = Path(cwd)
@@ -134,7 +134,7 @@ def run_command(
     full_env.update(env or {})
     t0 = time.perf_counter()
     with open(log, "wb") as out, contextlib.ExitStack() as tracked:
-        with deferred():  # a signal until the child is tracked must not lose it (stepnf.signals.deferred)
+        with deferred():  # a signal until the child is tracked must not lose it (stepnf.runtime.signals.deferred)
             try:
                 proc = subprocess.Popen(args, cwd=cwd, stdout=out, stderr=subprocess.STDOUT,
                                         stdin=subprocess.DEVNULL, env=full_env, start_new_session=True)

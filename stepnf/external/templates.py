@@ -5,7 +5,7 @@ import re
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..errors import StepnfError
+from stepnf.errors import StepnfError
 
 
 class TemplateError(StepnfError, ValueError):

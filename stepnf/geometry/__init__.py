@@ -7,9 +7,18 @@ labels of the modes of axisymmetric shells from any solid model's nodes.
 """
 from __future__ import annotations
 
-from .cap import VolumeMesh, disk_quad9, outward_normals, shell_volume, spherical_cap
-from .hexahedra import jacobians, shape_functions, volume
-from .labels import ModeLabeler
+from typing import TYPE_CHECKING
 
+from stepnf.runtime.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from stepnf.geometry.cap import VolumeMesh, disk_quad9, outward_normals, shell_volume, spherical_cap
+    from stepnf.geometry.hexahedra import jacobians, shape_functions, volume
+    from stepnf.geometry.labels import ModeLabeler
+
+_NAMES = {"VolumeMesh": "cap", "spherical_cap": "cap", "shell_volume": "cap", "outward_normals": "cap",
+          "disk_quad9": "cap", "jacobians": "hexahedra", "shape_functions": "hexahedra", "volume": "hexahedra",
+          "ModeLabeler": "labels"}
+__getattr__ = lazy_exports(__name__, _NAMES, globals())
 __all__ = ["VolumeMesh", "spherical_cap", "shell_volume", "outward_normals", "disk_quad9",
            "jacobians", "shape_functions", "volume", "ModeLabeler"]

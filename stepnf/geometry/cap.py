@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from .hexahedra import HEX27_NODES  # noqa: F401  (documentation of the node order)
+from stepnf.geometry.hexahedra import HEX27_NODES  # noqa: F401  (documentation of the node order)
 
 #: meshio cell-type names of the supported elements.
 CELL_TYPES = {"hex27": "hexahedron27", "hex20": "hexahedron20"}
@@ -60,7 +60,7 @@ class VolumeMesh:
     mid-surface (``zeta = 0``) when known; ``info`` free-form facts (a, R, h,
     resolution) for reports; ``node_sets`` named node sets ``{name: node indices}``
     (a generated cap has ``"edge"``, every node of its lateral face, for boundary
-    conditions: :mod:`stepnf.boundary`).
+    conditions: :mod:`stepnf.plugin.boundary`).
     """
 
     points: np.ndarray

@@ -37,8 +37,8 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..errors import MeshError, UnitsWarning
-from .hexahedra import HEX27_NODES, determinants, gauss_points, shape_functions
+from stepnf.errors import MeshError, UnitsWarning
+from stepnf.geometry.hexahedra import HEX27_NODES, determinants, gauss_points, shape_functions
 
 #: Cell types the checker knows (meshio names) and their number of nodes.
 CELL_NODES = {"tetra": 4, "tetra10": 10, "hexahedron": 8, "hexahedron20": 20, "hexahedron27": 27,

@@ -2,7 +2,7 @@
 
 ``[model.material]`` E, nu, rho (:data:`MATERIAL`) and ``[model.geometry]``
 shape, a, R (a number or "inf"), h and the O-grid resolution keys
-(:data:`CAP_GEOMETRY`), declared as :class:`~stepnf.schema.Schema` s that
+(:data:`CAP_GEOMETRY`), declared as :class:`~stepnf.keys.schema.Schema` s that
 every cap adapter includes in its own ``[model]`` keys. Every key has an
 allowed range (the constants below, each with its reason), checked when the
 scene is read; :func:`material`, :func:`cap_dimensions`,
@@ -14,11 +14,11 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping
 
-from ..errors import SceneError
-from ..materials import MATERIAL as ANY_MATERIAL
-from ..schema import Key, Schema
-from .cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK, MAX_GRADING
-from .rim import HELD_GRADING, HELD_N_RING
+from stepnf.errors import SceneError
+from stepnf.plugin.materials import MATERIAL as ANY_MATERIAL
+from stepnf.keys.schema import Key, Schema
+from stepnf.geometry.cap import DEFAULT_CORE, DEFAULT_N_CORE, DEFAULT_N_RING, DEFAULT_N_THICK, MAX_GRADING
+from stepnf.geometry.rim import HELD_GRADING, HELD_N_RING
 
 MATERIAL_KEYS = ("E", "nu", "rho")
 SHAPES = ("spherical_cap",)
@@ -47,7 +47,7 @@ _LENGTH = dict(lo=LENGTH_RANGE[0], hi=LENGTH_RANGE[1], why=" (a length in model 
 
 #: ``[model.material]``: a linear elastic isotropic material (all three keys, unless the adapter
 #: reads the material from the user's own deck).
-MATERIAL = Schema(*(ANY_MATERIAL[k] for k in MATERIAL_KEYS))  # the isotropic keys of stepnf.materials
+MATERIAL = Schema(*(ANY_MATERIAL[k] for k in MATERIAL_KEYS))  # the isotropic keys of stepnf.plugin.materials
 #: ``[model.geometry]`` of the three a, R, h (the shell scaling of a user's mesh, and of every cap).
 CAP_DIMENSIONS = Schema(
     Key("a", "number", "projected outer radius", **_LENGTH),
@@ -74,7 +74,7 @@ CAP_GEOMETRY = Schema(Key("shape", "choice", "the generated shape", default="sph
 #: The ``material`` and ``geometry`` tables of a cap adapter's ``[model]``.
 CAP_TABLES = Schema(
     Key("material", "table", "the material of every cell (isotropic E, nu, rho; with a mesh also orthotropic: "
-        "stepnf.materials)", table=ANY_MATERIAL),
+        "stepnf.plugin.materials)", table=ANY_MATERIAL),
     Key("geometry", "table", "a generated cap, free-edged unless [[model.boundary]] holds its \"edge\" set (or, "
         "beside a mesh, its a, R, h)", table=CAP_GEOMETRY),
 )

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .cap import outward_normals
+from stepnf.geometry.cap import outward_normals
 
 
 class ModeLabeler:

@@ -20,7 +20,7 @@ before and after.
 Halving every element twice from (n_core, n_ring) = (7, 4) to (28, 16), rings
 graded 2: observed order 2.1 .. 2.6 (the clamped solid edge's corner
 singularity keeps Q2 below its smooth h^4), Richardson limit 0.03% .. 0.26%
-below Leissa (the solid's own shear at a / h = 50; tests/test_held_rim.py).
+below Leissa (the solid's own shear at a / h = 50; tests/geometry/test_held_rim.py).
 
 A free rim keeps the mesh it always had (:data:`~stepnf.geometry.cap.DEFAULT_N_RING`
 equal rings), node for node. A resolution the scene gives (``n_ring``,
@@ -32,7 +32,7 @@ calculix and code_aster ones (:func:`stepnf.external.keys.build_solid`,
 20-node hexahedra). With C3D20 (one element through the thickness) the same
 clamped plate came out +0.98%, +1.11%, +1.14%, +1.31% at the free rim's
 defaults (9 585 free dofs) and +0.38%, +0.37%, +0.32%, +0.35% with the held
-rim's (13 113 free dofs; tests/test_calculix_boundary.py).
+rim's (13 113 free dofs; tests/solvers/calculix/test_calculix_boundary.py).
 """
 from __future__ import annotations
 
@@ -41,8 +41,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..boundary import BoundaryCondition, select_nodes
-from .cap import VolumeMesh, spherical_cap
+from stepnf.plugin.boundary import BoundaryCondition, select_nodes
+from stepnf.geometry.cap import VolumeMesh, spherical_cap
 
 #: Rings across the O-grid's ring block when the conditions hold the rim (5 when free).
 HELD_N_RING = 8
@@ -54,7 +54,7 @@ def rim_is_held(mesh: VolumeMesh, conditions: Sequence[BoundaryCondition], scene
                 ) -> bool:
     """True when ``conditions`` fix at least one dof of every node of the rim (the node set ``"edge"`` of a
     generated cap); ``False`` without conditions or without such a set. A set the mesh lacks, or a box
-    holding no node, is the :class:`~stepnf.errors.SceneError` of :func:`stepnf.boundary.select_nodes`."""
+    holding no node, is the :class:`~stepnf.errors.SceneError` of :func:`stepnf.plugin.boundary.select_nodes`."""
     rim = mesh.node_sets.get("edge")
     if rim is None or len(rim) == 0 or not conditions:
         return False

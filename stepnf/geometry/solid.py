@@ -10,8 +10,8 @@ mode and its (k, n) label. The adapter sets ``points`` (N, 3), ``geometry``
 VTK-ordered cells or None: then the mid-surface is sampled at the 3 x 3 points
 of each element, like a 27-node mesh, instead of at its nodes).
 
-Boundary conditions (:mod:`stepnf.boundary`): an adapter that fixes dofs sets
-``free_dofs`` (a :class:`~stepnf.boundary.FreeDofs` over the ``3 N`` nodal
+Boundary conditions (:mod:`stepnf.plugin.boundary`): an adapter that fixes dofs sets
+``free_dofs`` (a :class:`~stepnf.plugin.boundary.FreeDofs` over the ``3 N`` nodal
 dofs); the dofs this mixin exposes are then the free ones, and mode shapes are
 expanded to every node (zeros on the fixed dofs) before they are measured or
 labelled.
@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..boundary import FreeDofs
-from .cap import outward_normals
-from .labels import ModeLabeler, count_edge_circle, edge_is_held
-from .midsurface import midsurface_sampler
+from stepnf.plugin.boundary import FreeDofs
+from stepnf.geometry.cap import outward_normals
+from stepnf.geometry.labels import ModeLabeler, count_edge_circle, edge_is_held
+from stepnf.geometry.midsurface import midsurface_sampler
 
-from .keys import MATERIAL_KEYS
+from stepnf.geometry.keys import MATERIAL_KEYS
 
 
 class CapSolid:
@@ -47,7 +47,7 @@ class CapSolid:
                  resolution: dict | None = None, **kw: Any):
         """A free-edge spherical cap (``R = inf``: flat plate) meshed with 20-node bricks
         (:func:`stepnf.geometry.spherical_cap`), through the adapter's ``from_volume_mesh``."""
-        from .cap import spherical_cap
+        from stepnf.geometry.cap import spherical_cap
 
         mesh = spherical_cap(a, R, h, element="hex20", **dict(resolution or {}))
         geom = {"shape": "spherical_cap", "a": a, "R": R, "h": h, **dict(resolution or {})}
@@ -92,7 +92,7 @@ class CapSolid:
         g, m = self.geometry, self.material
         if not self._is_cap() or not all(k in m for k in MATERIAL_KEYS):
             return None
-        from ..shell import ShellScales
+        from stepnf.plugin.shell_scales import ShellScales
 
         return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])
 

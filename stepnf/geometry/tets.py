@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cap import VolumeMesh
+from stepnf.geometry.cap import VolumeMesh
 
 #: corners of the VTK hexahedron's faces (-x +x -y +y -z +z), cyclic, and their centre nodes
 _FACES = [((0, 3, 7, 4), 20), ((1, 2, 6, 5), 21), ((0, 1, 5, 4), 22), ((3, 2, 6, 7), 23),

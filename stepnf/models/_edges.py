@@ -68,7 +68,7 @@ plate, from 0 for k >= 2 and from 1 for k = 0, 1). The radial part of a free-edg
 """
 from __future__ import annotations
 
-from ._radial import RadialFamily, clamped_plate_family, free_plate_family
+from stepnf.models._radial import RadialFamily, clamped_plate_family, free_plate_family
 
 #: The edge conditions of the model (``[model] edge``).
 EDGES: tuple[str, ...] = ("free", "clamped")

@@ -60,15 +60,15 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import SceneError
-from ..config import check_choice, check_number
-from ..schema import Key, Schema
-from ..modal_model import ModalModel
-from ..shell import ShellScales
-from ._couplings import laplacian, trilinear
-from ._edges import EDGES, NU_MIN_CLAMPED, airy_family, first_circle, plate_family, sign_derivative
-from ._quadrature import angular_factors, panel_rule, radial_panels
-from ._radial import RadialFamily, angular_weight
+from stepnf.errors import SceneError
+from stepnf.keys.checks import check_choice, check_number
+from stepnf.keys.schema import Key, Schema
+from stepnf.plugin.modal_model import ModalModel
+from stepnf.plugin.shell_scales import ShellScales
+from stepnf.models._couplings import laplacian, trilinear
+from stepnf.models._edges import EDGES, NU_MIN_CLAMPED, airy_family, first_circle, plate_family, sign_derivative
+from stepnf.models._quadrature import angular_factors, panel_rule, radial_panels
+from stepnf.models._radial import RadialFamily, angular_weight
 
 #: Defaults. k_max = 8 makes the couplings of every mode with k <= 4 complete (the paper's six
 #: modes); with the other numbers T_NF of those six modes is within 3e-7 of a model with
@@ -271,7 +271,7 @@ class VonKarmanShell(ModalModel):
     # ------------------------------------------------------------------ API
     def galerkin(self) -> "GalerkinData":
         """The Galerkin data of the model (read-only views), for computations beyond ``g`` and ``h``: the
-        whole modal force of :mod:`stepnf.stages.modal_forces` (see :class:`GalerkinData`)."""
+        whole modal force of :mod:`stepnf.pipeline.modal_forces` (see :class:`GalerkinData`)."""
         return GalerkinData(self._fam, self._airy_r, self._xi4, self._r, self._w, self._rows, self._index,
                             self._omega, self.kappa, self.eps_c, self.k_max)
 

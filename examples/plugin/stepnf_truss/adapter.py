@@ -22,9 +22,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.adapter import SolverAdapter
-from stepnf.boundary import BOUNDARY_KEY, FreeDofs, boundary_conditions, fixed_dofs
-from stepnf.schema import Key, Schema
+from stepnf.plugin import BOUNDARY_KEY, FreeDofs, Key, Schema, SolverAdapter, boundary_conditions, fixed_dofs
 
 from .geometry import arched_box_truss
 
@@ -70,7 +68,7 @@ class TrussAdapter(SolverAdapter):
         # incidence C (m, nn): (C @ U)[e] = U[b] - U[a] for nodal fields U (nn, 3)
         self.C = sp.csr_matrix((np.r_[-np.ones(m), np.ones(m)], (np.r_[np.arange(m), np.arange(m)], np.r_[a, b])),
                                shape=(m, nn))
-        # zero displacements on node sets or boxes (stepnf.boundary): those dofs are removed
+        # zero displacements on node sets or boxes (stepnf.plugin.boundary): those dofs are removed
         bcs = boundary_conditions(boundary, scene_file)
         fixed = fixed_dofs(bcs, points, self.truss.node_sets, scene_file)
         self.free = FreeDofs(3 * nn, fixed)

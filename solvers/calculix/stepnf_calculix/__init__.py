@@ -38,7 +38,7 @@ or, instead of ``[model.geometry]``, ``mesh = "part.inp"`` (a user's solid
 mesh: ``*NODE`` and ``*ELEMENT`` blocks of C3D* elements, ``*NSET`` and
 ``*ELSET`` sets; the material of ``[model.material]`` applies to every
 element but those of the named element sets given their own, isotropic or
-orthotropic, :mod:`stepnf.materials`)::
+orthotropic, :mod:`stepnf.plugin.materials`)::
 
     [model.material]               # every element not in a set below; isotropic, or
     E1 = 1.3e11                    # orthotropic: E1 E2 E3 nu12 nu13 nu23 G12 G13 G23
@@ -59,7 +59,7 @@ and zero ``*BOUNDARY`` lines kept as written, its ``*STEP`` blocks replaced by
 stepnf's; no ``[model.material]``; what stepnf cannot honour is refused with
 its line: :mod:`.userdeck`).
 
-Boundary conditions (:mod:`stepnf.boundary`)::
+Boundary conditions (:mod:`stepnf.plugin.boundary`)::
 
     [[model.boundary]]
     set = "LEFT"                   # an *NSET (or the nodes of an *ELSET); "edge": a generated cap's rim
@@ -78,7 +78,7 @@ writes: needed for regions or orthotropic constants), ``${title}``; the
 shipped ones are ``templates/job.inp`` and ``templates/materials_job.inp``),
 ``executable = "ccx"`` (a name on PATH or a path, relative to the scene's
 folder; honoured only when the user allows programs named by scenes:
-``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.programs`, and
+``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.runtime.programs`, and
 then printed before it first runs), ``timeout = 3600`` (s per run), ``workdir = "runs"``
 (parent of the work folders, default the system temp folder), ``keep =
 "on_error"`` (or ``"never"``, ``"always"``), ``threads`` (``OMP_NUM_THREADS``),

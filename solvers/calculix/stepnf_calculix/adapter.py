@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import time
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -10,16 +9,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.boundary import BOUNDARY_KEY, FreeDofs
+from stepnf.plugin.boundary import BOUNDARY_KEY, FreeDofs
 from stepnf.errors import SceneError
 from stepnf.external import (EXECUTABLE, RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene,
                              missing_output, require_files, solid_model_keys)
 from stepnf.external.keys import THREADS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
-from stepnf.materials import MATERIALS_KEY, Material
-from stepnf.programs import resolve_program
-from stepnf.schema import Key, Schema
+from stepnf.plugin.materials import MATERIALS_KEY, Material
+from stepnf.runtime.programs import resolve_program
+from stepnf.keys.schema import Key, Schema
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
 from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
@@ -74,7 +73,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     blocks : ``[(ccx element type, element ids (E,), connectivity (E, k) in node ids, ccx order)]``
     material : ``{"E", "nu", "rho"}``: one isotropic material on every element (the shipped template needs a
         material: this one or ``materials``)
-    materials : ``{None: default, element set name: Material}`` (:func:`stepnf.materials.materials`): a material
+    materials : ``{None: default, element set name: Material}`` (:func:`stepnf.plugin.materials.materials`): a material
         per named ``*ELSET`` of ``element_sets``, isotropic or orthotropic (:meth:`apply_materials`)
     element_sets : the mesh's named element sets ``{NAME: element ids}`` (for ``materials``)
     source : the mesh file read (named in messages)
@@ -251,7 +250,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
                         scene_file: str | Path | None = None) -> dict[str, Any]:
         """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); a deck takes no job template; a
-        relative ``executable`` (allowed by the user: :mod:`stepnf.programs`) is made absolute from ``base_dir``."""
+        relative ``executable`` (allowed by the user: :mod:`stepnf.runtime.programs`) is made absolute from ``base_dir``."""
         c = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
         if "executable" in c:  # a relative path is the scene's, not the current folder's
             c["executable"] = resolve_program(c["executable"], base_dir)
@@ -263,7 +262,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     @classmethod
     def input_files(cls, checked: Mapping[str, Any]) -> list[Path]:
         """The files a ``deck`` or ``mesh`` includes (``*INCLUDE``, nested ones too), for the key of stored
-        results (:mod:`stepnf.model_key`); an unreadable deck is left to the build to report."""
+        results (:mod:`stepnf.scene.model_key`); an unreadable deck is left to the build to report."""
         from .inpfile import inp_lines
 
         out: list[Path] = []
@@ -391,12 +390,6 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         Gv = (Kp - Km) @ phi / (4.0 * q)
         h = float(phi @ ((Kp + Km - 2.0 * self.stiffness_matrix()) @ phi)) / (6.0 * q * q)
         return Gv, h
-
-    def _internal_forces(self, U: np.ndarray) -> np.ndarray:
-        t0 = time.perf_counter()
-        F = super()._internal_forces(U)
-        self.timings["forces"] = self.timings.get("forces", 0.0) + time.perf_counter() - t0
-        return F
 
 
 def _permute(A: sp.csr_matrix, index: np.ndarray) -> sp.csr_matrix:

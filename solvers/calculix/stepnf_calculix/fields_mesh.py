@@ -1,4 +1,4 @@
-"""The output mesh of the CalculiX adapter (for :mod:`stepnf.fields`): the nodes and elements ccx runs.
+"""The output mesh of the CalculiX adapter (for :mod:`stepnf.io.fields`): the nodes and elements ccx runs.
 
 Each ``C3D*`` element block becomes a meshio cell block of the same node order
 (:data:`.inpfile.MESHIO_TYPES`: CalculiX's solid elements number their nodes
@@ -12,7 +12,7 @@ from typing import Sequence
 
 import numpy as np
 
-from stepnf.fields import OutputMesh
+from stepnf.plugin import OutputMesh
 
 from .inpfile import MESHIO_TYPES
 
@@ -20,7 +20,7 @@ from .inpfile import MESHIO_TYPES
 def deck_output_mesh(node_ids: np.ndarray, points: np.ndarray,
                      blocks: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> OutputMesh:
     """``points`` (N, 3) of the nodes ``node_ids`` (N,) and the element ``blocks``
-    ``[(ccx type, element ids, connectivity in node ids)]`` as an :class:`~stepnf.fields.OutputMesh`
+    ``[(ccx type, element ids, connectivity in node ids)]`` as an :class:`~stepnf.io.fields.OutputMesh`
     (blocks of the same meshio type joined)."""
     ids = np.asarray(node_ids, dtype=np.int64)
     pos = np.full(int(ids.max()) + 1, -1, dtype=np.int64)

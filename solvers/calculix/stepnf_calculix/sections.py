@@ -1,7 +1,7 @@
 """The scene's materials on a mesh (``mesh =``): one material per named ``*ELSET``, written as CalculiX text.
 
 :func:`assign_sections` gives every element the material of the named
-element set it lies in (``[model.materials.<set>]``, :mod:`stepnf.materials`),
+element set it lies in (``[model.materials.<set>]``, :mod:`stepnf.plugin.materials`),
 the default ``[model.material]`` when it lies in none; :func:`materials_text`
 writes the matching model data, rendered into the job template's
 ``${materials}``:
@@ -14,7 +14,7 @@ writes the matching model data, rendered into the job template's
   every element, else an ``*ELSET`` stepnf writes), with ``ORIENTATION=`` and
   an ``*ORIENTATION, SYSTEM=RECTANGULAR`` holding the material axes 1 and 2
   when ``axes`` are given. ccx builds the local frame as
-  :func:`stepnf.materials.rotation` does (axis 1 along the first vector, axis
+  :func:`stepnf.plugin.materials.rotation` does (axis 1 along the first vector, axis
   2 in the plane of both, axis 3 = 1 x 2), and in large deformation keeps ``S
   = C : E`` in that frame of the reference configuration.
 
@@ -33,7 +33,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from stepnf.materials import ORTHOTROPIC, Material, assign_cells, material
+from stepnf.plugin.materials import ORTHOTROPIC, Material, assign_cells, material
 
 from .deck import REAL
 
@@ -85,7 +85,7 @@ def assign_sections(element_ids: np.ndarray, element_sets: Mapping[str, Sequence
                     mesh: str | Path | None = None) -> list[Section]:
     """The sections of ``materials`` (``{None: default, set name: Material}``) over the elements
     ``element_ids`` and the mesh's named ``element_sets`` (``{NAME: ids}``, names upper-case, looked up
-    case-insensitively as ccx does), through :func:`stepnf.materials.assign_cells` (its SceneErrors:
+    case-insensitively as ccx does), through :func:`stepnf.plugin.materials.assign_cells` (its SceneErrors:
     a set the mesh lacks, a set without element, an element in two of the named sets, elements in
     none when no default is given)."""
     ids = np.sort(np.asarray(element_ids, dtype=np.int64))

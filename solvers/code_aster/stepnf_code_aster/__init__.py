@@ -19,7 +19,7 @@ the force job instead: per field, ``CALCUL(OPTION=("FORC_INTE_ELEM",))`` at ``DE
 ROM_for_geomNL scripts), ``EXTR_TABLE`` of the elementary vectors, ``ASSE_VECTEUR``, and the
 fields gathered by ``CREA_RESU`` as ``FORC_NODA`` at times 1..n, so the same MED reader
 applies. Both routes' keywords are checked against code_aster 15's command catalogue
-(``tests/test_code_aster_catalogue.py``); the CALCUL route has never been run in code_aster by
+(``tests/solvers/code_aster/test_code_aster_catalogue.py``); the CALCUL route has never been run in code_aster by
 stepnf (no code_aster here), so the default stays the STAT_NON_LINE route.
 
 Scene keys (``[model]``)::
@@ -39,7 +39,7 @@ Scene keys (``[model]``)::
 or ``mesh = "part.med"`` (a user's MED volume mesh; ``mesh_name`` picks one
 of several meshes), with ``[model.material]`` isotropic or orthotropic (``E1`` ...
 ``G23``, ``rho``, optional ``axes``) and ``[model.materials.<group>]`` for named
-groups of volume cells of the MED file (:mod:`stepnf.materials`): written as
+groups of volume cells of the MED file (:mod:`stepnf.plugin.materials`): written as
 ``${materials}`` (``DEFI_MATERIAU`` ``ELAS``/``ELAS_ORTH``, ``AFFE_MATERIAU``) and
 ``${cara_elem}`` (``AFFE_CARA_ELEM`` ``MASSIF`` ``ANGL_REP``) of the templates. Run keys: ``command`` (e.g. ``"docker run --rm -v
 ${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
@@ -49,7 +49,7 @@ ${workdir}:${workdir} simvia/code_aster run_aster ${export}"``), ``templates``
 ``parallel_runs`` (code_aster runs at a time, each on a share of a batch).
 ``command`` and ``templates`` run what the scene names (the command files are
 Python): honoured only when the user allows programs named by scenes
-(``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.programs`),
+(``--allow-programs`` or ``STEPNF_ALLOW_PROGRAMS=1``, :mod:`stepnf.runtime.programs`),
 the command then printed before it first runs; a relative program in
 ``command`` is the scene folder's; the default ``run_aster`` is looked up in
 the absolute folders of PATH only. The shipped command files hold names and

@@ -18,7 +18,7 @@ code_aster 17, 2025):
   ``DEFI_GROUP(CREA_GROUP_MA=_F(NOM=..., TOUT="OUI"))`` (``defi_group.py``). The angles are in
   degrees (``r8dgrd`` where ANGL_REP is read, e.g. CALC_POINT_MAT) and follow
   ``bibfor/utilitai/matrot.F90``: alpha about Z0, beta about Y1 in the negative sense, gamma
-  about X; the rows of its matrix are the material axes, like :func:`stepnf.materials.rotation`
+  about X; the rows of its matrix are the material axes, like :func:`stepnf.plugin.materials.rotation`
   (the test rebuilds that matrix from the angles to 1e-12).
 - ``code_aster/Behaviours/elas.py``: the behaviour ``ELAS`` takes ``mc_mater = ('ELAS',
   'ELAS_ORTH', 'ELAS_ISTR')`` with ``deformation`` including ``GROT_GDEP`` in ``3D``: STAT_NON_LINE
@@ -29,7 +29,7 @@ Every command and keyword of every rendered variant (both force routes, the mate
 boundary conditions, the matrices job) passed code_aster 15's own checker
 (``code_aster/Cata/Language/SyntaxChecker.py`` ``checkCommandSyntax`` of the ehmoussi/code_aster
 mirror, 15.2, 2020); ``tests/data/code_aster_catalogue.json`` keeps those facts, each with its
-catalogue file, and ``tests/test_code_aster_catalogue.py`` holds the rendered files to them.
+catalogue file, and ``tests/solvers/code_aster/test_code_aster_catalogue.py`` holds the rendered files to them.
 Not in code_aster 15: ``getNodeAndComponentFromDOF`` of the matrix export (>= 16).
 
 Force routes (``force_route``): ``"stat_non_line"`` (``forces.comm``, the default) imposes every
@@ -56,16 +56,16 @@ from typing import Any, Mapping
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.boundary import BOUNDARY_KEY
+from stepnf.plugin.boundary import BOUNDARY_KEY
 from stepnf.errors import SceneError, SolverRunError
 from stepnf.external import (RUN_KEYS, CommandTemplate, ExternalSolverAdapter, SolidFromScene, missing_output,
                              require_files, solid_model_keys)
 from stepnf.external.keys import MEMORY_MB, NCPUS
 from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
-from stepnf.materials import MATERIALS_KEY, Material, assign_cells
-from stepnf.programs import resolve_program, which
-from stepnf.schema import Key, Schema
+from stepnf.plugin.materials import MATERIALS_KEY, Material, assign_cells
+from stepnf.runtime.programs import resolve_program, which
+from stepnf.keys.schema import Key, Schema
 
 from .materials import has_axes, is_plain, materials_text, python_str
 from .med import (MedError, add_nodal_field, read_cell_groups, read_groups, read_mesh_nodes, read_nodal_steps,
@@ -150,7 +150,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     ----------
     points : (N, 3) node coordinates of the mesh
     material : ``{"E", "nu", "rho"}`` (``{}`` when ``materials`` holds no isotropic default)
-    materials : ``{None: default, MED cell group: Material}`` (:func:`stepnf.materials.materials`): a
+    materials : ``{None: default, MED cell group: Material}`` (:func:`stepnf.plugin.materials.materials`): a
         material per named group of volume cells of the MED mesh, isotropic or orthotropic
         (:meth:`apply_materials`)
     cell_groups : ``(n_cells, {group: 0-based volume cells})`` of the mesh (:func:`.med.read_cell_groups`)
@@ -223,7 +223,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         if materials:
             self.apply_materials(materials)
         elif self.material:
-            from stepnf.materials import material as checked_material
+            from stepnf.plugin.materials import material as checked_material
 
             self.apply_materials({None: checked_material(self.material, None, "model.material")})
         filled = self._values(Path("workdir"), "forces")
@@ -234,7 +234,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def apply_materials(self, materials: Mapping[str | None, Material], *, scene_file: Any = None) -> None:
         """One material per named group of volume cells of the MED mesh (``[model.materials.<group>]``), the
         default (``None``) on the others: SceneErrors naming the key for a group the mesh lacks (listing its
-        groups), a cell in two groups, cells in none without a default (:func:`stepnf.materials.assign_cells`),
+        groups), a cell in two groups, cells in none without a default (:func:`stepnf.plugin.materials.assign_cells`),
         and for regions, orthotropy or axes that a user's template cannot hold (no ``${materials}``,
         no ``${cara_elem}``)."""
         named = [k for k in materials if k is not None]
@@ -268,7 +268,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def validate_config(cls, config: Mapping[str, Any], *, base_dir: str | Path,
                         scene_file: str | Path | None = None) -> dict[str, Any]:
         """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); ``command`` and ``templates``
-        only when the user allows programs (:mod:`stepnf.programs`); the command's program, when a
+        only when the user allows programs (:mod:`stepnf.runtime.programs`); the command's program, when a
         relative path, is the scene folder's (passed on as ``executable``)."""
         c = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
         if "command" in config:

@@ -1,6 +1,6 @@
 """The scene's materials as code_aster commands: ``${materials}`` and ``${cara_elem}`` of the templates.
 
-``[model.material]`` and ``[model.materials.<group>]`` (:mod:`stepnf.materials`) become one
+``[model.material]`` and ``[model.materials.<group>]`` (:mod:`stepnf.plugin.materials`) become one
 ``DEFI_MATERIAU`` each (``ELAS`` or ``ELAS_ORTH``) and one ``AFFE_MATERIAU`` whose ``AFFE``
 occurrences give the default to ``TOUT="OUI"`` and then each group's material to its
 ``GROUP_MA`` (later occurrences override earlier ones). Material axes become
@@ -15,7 +15,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from stepnf.materials import Material, rotation
+from stepnf.plugin.materials import Material, rotation
 
 REAL = "%.17g"
 #: stepnf's engineering constants -> code_aster's ELAS_ORTH keywords (axes 1, 2, 3 = L, T, N).
@@ -30,7 +30,7 @@ PLAIN_LINES = ('material = DEFI_MATERIAU(ELAS=_F(E={E}, NU={nu}, RHO={rho}))\n\n
 
 def nautical_angles(Q: np.ndarray) -> tuple[float, float, float]:
     """``(alpha, beta, gamma)`` in degrees of the rotation ``Q`` whose rows are the material axes
-    e1, e2, e3 in global coordinates (:func:`stepnf.materials.rotation`), in code_aster's
+    e1, e2, e3 in global coordinates (:func:`stepnf.plugin.materials.rotation`), in code_aster's
     convention (``matrot``: alpha about Z0, beta about the new Y1 in the negative sense, gamma
     about the final X; the rows of its matrix are the final axes):
     ``e1 = (cos b cos a, cos b sin a, -sin b)``, ``e2 = sin g (sin b cos a, sin b sin a, cos b) + cos g

@@ -3,9 +3,9 @@
 A subclass sets ``self._forms`` (an object with ``mass()``, ``stiffness()``,
 ``internal_force(u)``, ``quadratic(u, v)``, ``cubic(u, v, w)``, all over the
 whole space), ``self._n`` (number of free dofs), ``self._free`` (a
-:class:`stepnf.boundary.FreeDofs` when boundary conditions fix dofs, else
+:class:`stepnf.plugin.boundary.FreeDofs` when boundary conditions fix dofs, else
 ``None``) and ``self.timings``; M and K are assembled once, on first use
-(:class:`stepnf.lazy_matrices.LazyMatrices`, timings ``"mass"`` and ``"stiffness"``).
+(:class:`stepnf.plugin.lazy_matrices.LazyMatrices`, timings ``"mass"`` and ``"stiffness"``).
 
 Constrained dofs are removed (the adapter protocol): M and K are restricted to
 the free rows and columns; a free field is expanded (zeros on the fixed dofs),
@@ -17,14 +17,14 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.adapter import SolverAdapter
-from stepnf.boundary import FreeDofs
-from stepnf.lazy_matrices import LazyMatrices
+from stepnf.plugin.adapter import SolverAdapter
+from stepnf.plugin.boundary import FreeDofs
+from stepnf.plugin.lazy_matrices import LazyMatrices
 
 
 class FormsAdapter(LazyMatrices, SolverAdapter):
     provides_intrusive_tensors = True
-    uses_mpi = True  # dolfinx starts MPI: stepnf checks first that Open MPI can (stepnf.mpi_env)
+    uses_mpi = True  # dolfinx starts MPI: stepnf checks first that Open MPI can (stepnf.runtime.mpi_env)
     #: the free dofs once the boundary conditions' dofs are removed (``None``: every dof is free)
     _free: FreeDofs | None = None
 

@@ -22,8 +22,8 @@
     rho = 4400.0
     [model.materials.CORE]       # with mesh, optional: the cells of the mesh's cell set CORE
     E1 = 1.3e11                  # isotropic (E, nu) or orthotropic (E1 E2 E3 nu12 nu13 nu23 G12 G13 G23)
-    ...                          # constants, rho, optional axes (stepnf.materials)
-    [[model.boundary]]           # optional, repeated: zero displacements (stepnf.boundary)
+    ...                          # constants, rho, optional axes (stepnf.plugin.materials)
+    [[model.boundary]]           # optional, repeated: zero displacements (stepnf.plugin.boundary)
     set = "edge"                 # a named node set: "edge" on a generated cap, the file's sets with mesh
     dofs = ["ux", "uy", "uz"]    # optional (default: clamped)
 
@@ -62,11 +62,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Mapping
 
-from stepnf.boundary import BOUNDARY_KEY, boundary_conditions
+from stepnf.plugin.boundary import BOUNDARY_KEY, boundary_conditions
 from stepnf.errors import SceneError
 from stepnf.geometry import keys as cap_keys
-from stepnf.materials import MATERIALS_KEY, materials
-from stepnf.schema import Key, Schema
+from stepnf.plugin.materials import MATERIALS_KEY, materials
+from stepnf.keys.schema import Key, Schema
 
 ELEMENTS = ("hex27", "tet10")
 
@@ -89,8 +89,8 @@ def parse_model(config: Mapping[str, Any], *, base_dir: Path, scene_file=None) -
     """Check the keys and return ``{element, material, materials, geometry (or None), mesh (Path or None),
     quadrature_degree, boundary}``: ``material`` the constants of ``[model.material]`` (a generated cap's E,
     nu, rho; ``None`` when a mesh's cell sets carry every material), ``materials`` (with a mesh)
-    :func:`stepnf.materials.materials` ``{None: default, set: Material}``, ``boundary`` a list of
-    :class:`stepnf.boundary.BoundaryCondition` (empty when none)."""
+    :func:`stepnf.plugin.materials.materials` ``{None: default, set: Material}``, ``boundary`` a list of
+    :class:`stepnf.plugin.boundary.BoundaryCondition` (empty when none)."""
     f = scene_file
     c = MODEL_KEYS.check(config, file=f, where="model", base_dir=base_dir, reserved=("solver",))
     geo = c.get("geometry", {})

@@ -1,6 +1,6 @@
 """Boundary conditions of the FEniCSx adapters: named node sets and boxes of a mesh -> dofs of dolfinx's space.
 
-A scene's ``[[model.boundary]]`` tables (:mod:`stepnf.boundary`, the one
+A scene's ``[[model.boundary]]`` tables (:mod:`stepnf.plugin.boundary`, the one
 vocabulary of every FE adapter) select *mesh nodes*: a named set of the mesh
 file (:func:`stepnf_fenicsx.meshfile.read_node_sets`: meshio point sets, cell
 sets and their nodes, Gmsh physical groups of any dimension, MED groups), the
@@ -30,7 +30,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from stepnf.boundary import (BOUNDARY_KEY, DOF_NAMES, BoundaryCondition, FreeDofs, boundary_conditions,
+from stepnf.plugin.boundary import (BOUNDARY_KEY, DOF_NAMES, BoundaryCondition, FreeDofs, boundary_conditions,
                              select_nodes)
 
 from . import _compat
@@ -38,8 +38,8 @@ from . import _compat
 
 def as_conditions(boundary: Sequence[BoundaryCondition | Mapping[str, Any]] | None,
                   scene_file: str | Path | None = None) -> list[BoundaryCondition]:
-    """Boundary conditions from :class:`~stepnf.boundary.BoundaryCondition` s, or from
-    ``[[model.boundary]]``-like tables (checked by :data:`stepnf.boundary.BOUNDARY_KEY`)."""
+    """Boundary conditions from :class:`~stepnf.plugin.boundary.BoundaryCondition` s, or from
+    ``[[model.boundary]]``-like tables (checked by :data:`stepnf.plugin.boundary.BOUNDARY_KEY`)."""
     items = list(boundary or ())
     if all(isinstance(b, BoundaryCondition) for b in items):
         return items

@@ -2,11 +2,11 @@
 
 ``b`` and ``x`` are global vectors in the adapter's numbering, the same on every rank (a
 :class:`~stepnf_fenicsx.layout.RankBlocks` scatters and gathers them). A block ``b`` (n, k) goes to
-MUMPS in ONE ``MatMatSolve`` (distributed dense right-hand sides, :func:`stepnf.linalg.factor_block_solve`,
+MUMPS in ONE ``MatMatSolve`` (distributed dense right-hand sides, :func:`stepnf.linalg.factorization.factor_block_solve`,
 the serial core's too), so its forward and backward substitutions read the factors once for the k
 columns: the lockstep conjugate gradients of the deflated solves
-(:meth:`stepnf.deflation.DeflatedSolver.solve_many`) send their columns together. The solve declares
-this with ``takes_columns = True`` (:func:`stepnf.linalg.apply_columns` then passes blocks through)
+(:meth:`stepnf.linalg.deflation.DeflatedSolver.solve_many`) send their columns together. The solve declares
+this with ``takes_columns = True`` (:func:`stepnf.linalg.factorization.apply_columns` then passes blocks through)
 and frees what it owns with ``release()``, which stepnf calls when it no longer needs the
 factorisation (one live shifted factorisation at a time instead of all of them until ``close()``).
 Every call is collective.
@@ -18,7 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from stepnf.errors import NumericalError
-from stepnf.linalg import factor_block_solve
+from stepnf.linalg.factorization import factor_block_solve
 
 
 class DirectSolve:

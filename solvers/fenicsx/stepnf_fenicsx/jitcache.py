@@ -17,7 +17,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from stepnf.atomic import private_folder
+from stepnf.io.atomic import private_folder
 
 
 def cache_dir() -> Path:
@@ -31,7 +31,7 @@ def cache_dir() -> Path:
     image run by a user without a writable home). Resolved once per environment.
 
     The cache holds compiled ``.so`` files the next run loads, so it must be the user's
-    alone (:func:`stepnf.atomic.private_folder`): folders made for it are created 0700 whatever the
+    alone (:func:`stepnf.io.atomic.private_folder`): folders made for it are created 0700 whatever the
     umask, and a folder (or its parent) that belongs to another user or is group- or
     world-writable is not used: an error for ``STEPNF_CACHE_DIR``, else the next
     candidate with one :class:`OutputWarning` (in the temporary folder, a fresh

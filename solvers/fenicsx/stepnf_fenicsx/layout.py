@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.boundary import FreeDofs
+from stepnf.plugin.boundary import FreeDofs
 
 
 def allgatherv(comm, x: np.ndarray, mpi_type) -> np.ndarray:

@@ -5,7 +5,7 @@
 ``hexahedron20`` (a CalculiX ``C3D20`` mesh), which :func:`hex20_to_hex27`
 completes into quadratic hexahedra, so that the same mesh file serves both
 solvers. :func:`read_node_sets` gives the named node sets boundary conditions
-refer to (:mod:`stepnf.boundary`), :func:`read_cell_sets` the named sets of
+refer to (:mod:`stepnf.plugin.boundary`), :func:`read_cell_sets` the named sets of
 volume cells ``[model.materials.<set>]`` refer to (:mod:`stepnf_fenicsx.regions`).
 Units: those of the file.
 """

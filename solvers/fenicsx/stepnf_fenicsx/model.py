@@ -7,7 +7,7 @@ the nodal displacements: ``f(u) = K u + G(u, u) + H(u, u, u)``, where
 obtained here as UFL Gateaux derivatives (exact, symmetric). ``C`` may differ
 from cell to cell (:class:`MaterialField`): f stays a cubic, since C does not
 depend on u. Isotropic materials keep ``S = lambda tr(E) I + 2 mu E``;
-orthotropic ones (or any ``C``) use :mod:`stepnf.materials`' Voigt order
+orthotropic ones (or any ``C``) use :mod:`stepnf.plugin.materials`' Voigt order
 (11, 22, 33, 23, 13, 12) with engineering shear strains ``2 E_ij``.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from stepnf.materials import isotropic_stiffness
+from stepnf.plugin.materials import isotropic_stiffness
 
 from . import _compat
 from .regions import CellMaterials
@@ -29,7 +29,7 @@ from .regions import CellMaterials
 class Material:
     """Isotropic linear elastic material: Young's modulus E, Poisson ratio nu, density rho.
 
-    It answers like :class:`stepnf.materials.Material` (``C``, ``rho``, ``constants``, ``isotropic``),
+    It answers like :class:`stepnf.plugin.materials.Material` (``C``, ``rho``, ``constants``, ``isotropic``),
     so the forms take either kind.
     """
 

@@ -26,7 +26,7 @@ factorisations, the expensive and memory-hungry part, stay distributed.
 
 Shifted solves below the computed spectrum (``K^+``, the modal derivative's
 ``K - w^2 M``, DNF's ``K - 4 w^2 M`` when it lies inside) reuse the
-eigen-solve's factorisation through :class:`stepnf.deflation.DeflatedSolver`,
+eigen-solve's factorisation through :class:`stepnf.linalg.deflation.DeflatedSolver`,
 as the serial core does; only shifts above the computed spectrum cost a new
 parallel factorisation.
 
@@ -56,7 +56,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from stepnf.boundary import FreeDofs
+from stepnf.plugin.boundary import FreeDofs
 from stepnf.errors import NumericalError
 
 from . import _compat
@@ -188,7 +188,7 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
 
     def _rigid_modes(self) -> np.ndarray:
         """M-orthonormal rigid-body motions (n, r) of the free solid (global vectors)."""
-        from stepnf.modal import lambda_scale, rigid_body_fields, rigid_modes_from
+        from stepnf.linalg.modal_analysis import lambda_scale, rigid_body_fields, rigid_modes_from
 
         K, M = self.stiffness_matrix(), self.mass_matrix()
         cands = rigid_body_fields(self.dof_coordinates(), self.dof_directions())
@@ -207,7 +207,7 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
         """
         from slepc4py import SLEPc
 
-        from stepnf.modal import lambda_scale
+        from stepnf.linalg.modal_analysis import lambda_scale
 
         t0 = time.perf_counter()
         K, M = self.stiffness_matrix(), self.mass_matrix()
@@ -287,7 +287,7 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
 
     def _keep_eigen_solver(self, eps, Phi: np.ndarray, lam: np.ndarray, R: np.ndarray) -> None:
         """Keep SLEPc's factorisation of ``K - sigma_0 M`` for the deflated shifted solves."""
-        from stepnf.deflation import DeflatedSolver
+        from stepnf.linalg.deflation import DeflatedSolver
 
         if self._eps is not None:
             self._eps.destroy()
@@ -300,7 +300,7 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
                         ) -> Callable[[np.ndarray], np.ndarray] | None:
         """``(K - sigma M)^-1`` by deflation + CG (no new factorisation), or None when not applicable.
 
-        Applicable below the computed spectrum (``stepnf.deflation``). With
+        Applicable below the computed spectrum (``stepnf.linalg.deflation``). With
         ``fixed_dofs`` (sigma = 0 only) the solve is the isostatically
         supported one, exactly: the reactions that equilibrate ``b`` are put
         back on the fixed dofs (``R_F^T`` is regular for an isostatic
@@ -338,7 +338,7 @@ class DistributedFenicsxAdapter(FenicsxAdapter, distributed=True):
 
         Below the computed spectrum, by deflation with the computed modes and
         CG preconditioned by the eigen-solve's factorisation (as the serial
-        core does, :mod:`stepnf.deflation`); otherwise a new parallel MUMPS
+        core does, :mod:`stepnf.linalg.deflation`); otherwise a new parallel MUMPS
         ``LDL^T`` factorisation, a :class:`~stepnf_fenicsx.direct.DirectSolve`: blocks of right-hand
         sides in one MUMPS call, freed by its ``release()`` (stepnf's slot calls it before the next
         factorisation) or at :meth:`close`.

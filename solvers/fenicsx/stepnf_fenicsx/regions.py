@@ -10,7 +10,7 @@
     E1 = 1.3e11
     ...
 
-The tables are :mod:`stepnf.materials`' (checked when the scene is read); the
+The tables are :mod:`stepnf.plugin.materials`' (checked when the scene is read); the
 cell sets are the mesh file's (:func:`stepnf_fenicsx.meshfile.read_cell_sets`:
 meshio cell sets such as an Abaqus ``*ELSET``, Gmsh physical groups of volume
 cells, MED groups of cells). :func:`assign_materials` gives each cell the
@@ -20,7 +20,7 @@ have (listing those it has), a cell in two named sets (naming both) and
 unnamed cells without a default. No dolfinx here: the forms
 (:class:`stepnf_fenicsx.model.MaterialField`) carry the result onto dolfinx's
 cells. A material is either kind of the package (:class:`stepnf_fenicsx.model.Material`,
-isotropic, or :class:`stepnf.materials.Material`): both have ``C``, ``rho``,
+isotropic, or :class:`stepnf.plugin.materials.Material`): both have ``C``, ``rho``,
 ``constants`` and ``isotropic``.
 """
 from __future__ import annotations
@@ -31,7 +31,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from stepnf.materials import assign_cells
+from stepnf.plugin.materials import assign_cells
 
 
 @dataclass(frozen=True)
@@ -65,7 +65,7 @@ def describe_material(material: Any) -> dict[str, Any]:
 def assign_materials(n_cells: int, cell_sets: Mapping[str, np.ndarray], default: Any, named: Mapping[str, Any],
                      scene_file: str | Path | None = None, mesh_name: str | Path | None = None) -> CellMaterials:
     """Each cell's material: that of the named set holding it (``named``: ``{set: material}``), else ``default``
-    (:func:`stepnf.materials.assign_cells`: the SceneErrors of a set the mesh lacks, a cell in two
+    (:func:`stepnf.plugin.materials.assign_cells`: the SceneErrors of a set the mesh lacks, a cell in two
     named sets and cells in none without a default)."""
     names = list(named)
     owner = assign_cells(n_cells, cell_sets, names, default is not None, scene_file, mesh_name)

@@ -32,7 +32,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 
 import numpy as np
 
-from stepnf.boundary import BoundaryCondition, FreeDofs
+from stepnf.plugin.boundary import BoundaryCondition, FreeDofs
 from stepnf.errors import SceneError
 from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals
 from stepnf.geometry.rim import cap_for_conditions
@@ -54,7 +54,7 @@ class FenicsxAdapter(FormsAdapter):
     ----------
     mesh : the volume mesh (``hexahedron27``, ``tetra10``, or linear cells); a mesh file's
         (:func:`~stepnf_fenicsx.meshfile.read_mesh`) has named cell sets ``cell_sets``
-    material : :class:`Material` (E, nu, rho) or :class:`stepnf.materials.Material` (isotropic or
+    material : :class:`Material` (E, nu, rho) or :class:`stepnf.plugin.materials.Material` (isotropic or
         orthotropic): every cell no set of ``materials`` names (``None``: the sets must cover the mesh)
     materials : ``{cell set: material}``, the regions of ``[model.materials.<set>]``
         (:func:`~stepnf_fenicsx.regions.assign_materials`: a set the mesh lacks, a cell in two sets or
@@ -63,7 +63,7 @@ class FenicsxAdapter(FormsAdapter):
     geometry : optional ``{a, R, h}`` of a shallow spherical cap (shell scales, labels)
     quadrature_degree : quadrature degree of every form (4: 3x3x3 Gauss points on hexahedra)
     boundary : zero-displacement conditions on the mesh's node sets (``mesh.node_sets``) or boxes:
-        :class:`stepnf.boundary.BoundaryCondition` s or ``[[model.boundary]]`` tables
+        :class:`stepnf.plugin.boundary.BoundaryCondition` s or ``[[model.boundary]]`` tables
         (``{"set": "edge"}``); their dofs are removed
     scene_file : the scene, named by messages about ``boundary``
     """
@@ -216,7 +216,7 @@ class FenicsxAdapter(FormsAdapter):
         """The shell scales of a plate or cap (``geometry``) of one isotropic material (else ``None``)."""
         if self.geometry is None or self.regions is not None or not self.material.isotropic:
             return None
-        from stepnf.shell import ShellScales
+        from stepnf.plugin.shell_scales import ShellScales
 
         g, m = self.geometry, self.material.constants
         return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])

@@ -14,7 +14,7 @@ Mesh: curved 6-node triangles on concentric rings
 Dofs: one blocked P3 (or P2) space, node-major ``(u, v, w)`` of node 0, node
 1, ... (``dof_directions`` = 0, 1, 2 repeated); ``dof_coordinates`` puts each
 node on the mid-surface ``(x, y, z0(x, y))``. With these coordinates the six
-rigid motions of :func:`stepnf.modal.rigid_body_fields` are *exact*
+rigid motions of :func:`stepnf.linalg.modal_analysis.rigid_body_fields` are *exact*
 zero-energy fields of the discrete model (a rotation about ``e_y`` is
 ``w = -x``, ``u = z0`` up to a translation, which makes the linear membrane
 strain vanish; the forms use the interpolant of z0 for this), so the model
@@ -58,7 +58,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from stepnf.boundary import DOF_NAMES, BoundaryCondition, FreeDofs, select_nodes
+from stepnf.plugin.boundary import DOF_NAMES, BoundaryCondition, FreeDofs, select_nodes
 from stepnf.errors import SceneError
 
 from . import _compat
@@ -132,7 +132,7 @@ class ShallowShellAdapter(FormsAdapter):
         at 5 403 dofs, (4,0) is 7e-3 off with P2 and 3e-5 with P3)
     quadrature_degree : of the cell integrals (default ``2 degree``: exact mass and linear stiffness
         on straight cells; f stays an exact cubic of the dofs whatever the rule)
-    boundary : the edge conditions (see the module docstring): :class:`stepnf.boundary.BoundaryCondition` s
+    boundary : the edge conditions (see the module docstring): :class:`stepnf.plugin.boundary.BoundaryCondition` s
         or ``[[model.boundary]]`` tables (``{"set": "edge"}``: clamped); none: free edge
     scene_file : the scene, named by messages about ``boundary``
 
@@ -229,7 +229,7 @@ class ShallowShellAdapter(FormsAdapter):
         return self.geometry["h"]
 
     def shell_scales(self):
-        from stepnf.shell import ShellScales
+        from stepnf.plugin.shell_scales import ShellScales
 
         g, m = self.geometry, self.material
         return ShellScales.from_geometry(a=g["a"], R=g["R"], h=g["h"], E=m["E"], nu=m["nu"], rho=m["rho"])

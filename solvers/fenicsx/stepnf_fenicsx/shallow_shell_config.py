@@ -38,9 +38,9 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from stepnf.boundary import BOUNDARY_KEY, boundary_conditions
+from stepnf.plugin.boundary import BOUNDARY_KEY, boundary_conditions
 from stepnf.geometry import keys as cap_keys
-from stepnf.schema import Key, Schema
+from stepnf.keys.schema import Key, Schema
 
 #: Defaults of the optional keys (``quadrature_degree``: ``2 * degree``). Resolution: 12 rings, P3,
 #: 11 991 dofs: frequencies of the first 24 modes within 3e-5 of the von Karman model, Gamma of the
@@ -75,7 +75,7 @@ MODEL_KEYS = Schema(
 def parse_shell_model(config: Mapping[str, Any], scene_file=None) -> dict[str, Any]:
     """Check the keys; return ``{a, R, h, n_rings, grading, E, nu, rho, inplane_inertia, penalty,
     quadrature_degree, boundary}`` with defaults filled in (:data:`DEFAULTS`; ``boundary``: a list of
-    :class:`stepnf.boundary.BoundaryCondition`, empty for the free edge)."""
+    :class:`stepnf.plugin.boundary.BoundaryCondition`, empty for the free edge)."""
     f = scene_file
     c = MODEL_KEYS.check(config, file=f, where="model", reserved=("solver",))
     out = {k: c.get(k, DEFAULTS[k]) for k in ("inplane_inertia", "penalty", "degree")}

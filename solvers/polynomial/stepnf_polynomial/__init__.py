@@ -5,7 +5,7 @@
 read from an ``.npz`` or HDF5 file (``.h5``/``.hdf5``) holding arrays ``M``
 (n, n), ``K`` (n, n), ``G`` (n, n, n), ``H`` (n, n, n, n), and optionally
 ``coordinates`` (n, 3), ``directions`` (n,) (codes of
-:data:`stepnf.adapter.DIRECTIONS`) and ``length`` (a characteristic length for
+:data:`stepnf.plugin.adapter.DIRECTIONS`) and ``length`` (a characteristic length for
 the automatic STEP amplitude). ``G`` and ``H`` are symmetrised in their lower
 indices on loading (only that part acts in ``f``). Every array's header is checked before
 its data is read: real (bool, int, float) dtypes only, never pickled objects, shapes that fit

@@ -19,9 +19,9 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.lib import format as npy_format
 
-from stepnf.adapter import DIRECTIONS, SolverAdapter
+from stepnf.plugin.adapter import DIRECTIONS, SolverAdapter
 from stepnf.errors import SceneError
-from stepnf.schema import Key, Schema
+from stepnf.keys.schema import Key, Schema
 
 REQUIRED = ("M", "K", "G", "H")
 OPTIONAL = ("coordinates", "directions", "length")

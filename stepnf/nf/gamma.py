@@ -1,0 +1,91 @@
+"""Gamma of any structure: the backbone per squared amplitude in thicknesses.
+
+``w_NL / w = 1 + Gamma (W_max / h)^2`` with ``Gamma = T (h / W_max)^2``
+(docs/design.md, "Comparing models"): ``T`` is the backbone coefficient of the
+M-normalised mode shape ``phi`` (``w_NL = w (1 + T a^2)``), ``W_max`` the
+largest transverse displacement of ``phi`` and ``h`` a thickness, both in
+model length units, so Gamma is free of the mode's normalisation and of the
+unit system.
+
+Where ``h`` and ``W_max`` come from (:func:`gamma_scale`):
+
+* ``[analysis] transverse`` ("ux", "uy", "uz" or a direction vector ``e``):
+  ``W_max = max over nodes |u . e|`` of the mode shape, for any mesh (nodes are
+  told apart by their dof coordinates; the fixed dofs of a boundary condition
+  carry no displacement and are not needed);
+* otherwise the adapter's own :meth:`~stepnf.plugin.adapter.SolverAdapter.transverse_amplitude`
+  (a generated cap: the mid-surface normal displacement);
+* ``h``: ``[analysis] thickness``, otherwise the model's shell scales (a cap's h).
+
+Without one of the two, Gamma is ``None`` and :func:`gamma_scale` says why
+(the run shows it as a flag): a number the tool cannot define is not printed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from stepnf.plugin.adapter import DIRECTIONS
+
+
+def transverse_peak(phi: np.ndarray, X: np.ndarray | None, D: np.ndarray, transverse: str | tuple) -> float | None:
+    """``max |u . e|`` over the nodes of the field ``phi`` (dof coordinates ``X``, direction codes ``D``);
+    ``None`` when no dof carries that direction."""
+    phi, D = np.asarray(phi, dtype=float), np.asarray(D)
+    if isinstance(transverse, str):
+        sel = D == DIRECTIONS.index(transverse)
+        return float(np.max(np.abs(phi[sel]))) if sel.any() else None
+    t = np.flatnonzero(D < 3)
+    if t.size == 0 or X is None:
+        return None
+    _, node = np.unique(np.asarray(X, dtype=float)[t], axis=0, return_inverse=True)
+    u = np.zeros((int(node.max()) + 1, 3))
+    u[node.ravel(), D[t]] = phi[t]
+    return float(np.max(np.abs(u @ np.asarray(transverse, dtype=float))))
+
+
+@dataclass(frozen=True)
+class GammaScale:
+    """How a run turns T into Gamma: ``thickness`` h (model units), ``amplitude(phi)`` = W_max,
+    and ``source``, what defined them (stored with the results)."""
+
+    thickness: float
+    amplitude: Callable[[np.ndarray], float | None]
+    source: str
+
+    def gamma(self, T: float, w_max: float | None) -> float | None:
+        """``T (h / W_max)^2``; ``None`` without a positive W_max."""
+        if w_max is None or not w_max > 0:
+            return None
+        return T * (self.thickness / w_max) ** 2
+
+
+def gamma_scale(scene: Any, adapter: Any, X: np.ndarray | None, D: np.ndarray | None
+                ) -> tuple[GammaScale | None, str | None]:
+    """The run's :class:`GammaScale`, or ``None`` and the reason (for a flag)."""
+    scales = adapter.shell_scales()
+    h = scene.thickness if scene.thickness is not None else (scales.thickness if scales is not None else None)
+    if scene.transverse is not None:
+        if D is None:
+            return None, ("analysis.transverse needs the dof directions of the model; this adapter gives none, "
+                          "so Gamma is not computed")
+        e = scene.transverse
+
+        def amplitude(phi: np.ndarray) -> float | None:
+            return transverse_peak(phi, X, D, e)
+
+        how = f"transverse = {e!r}" if isinstance(e, str) else f"transverse = [{', '.join(f'{c:.6g}' for c in e)}]"
+    else:
+        amplitude = adapter.transverse_amplitude
+        how = "the model's transverse displacement"
+    if h is None:
+        return None, ("Gamma = T (h / W_max)^2 needs a thickness h: set [analysis] thickness (model length units)"
+                      + ("" if scene.transverse is not None else " and transverse (\"uz\" or a direction vector)"))
+    return GammaScale(h, amplitude, f"h = {h:g} ({'analysis.thickness' if scene.thickness is not None else 'model'})"
+                      f", W_max: {how}"), None
+
+
+NO_AMPLITUDE = ("Gamma = T (h / W_max)^2 needs the transverse direction of the mode shapes: set [analysis] "
+                "transverse (\"uz\" or a direction vector)")

@@ -1,0 +1,121 @@
+"""One method (NF, DNF, MD, SMD; modal or full order) applied to one master mode."""
+from __future__ import annotations
+
+import numpy as np
+
+from stepnf.nf.coefficient import MethodResult
+from stepnf.nf.diagnostics import captured_share, floor_scale, merge_flags, one_two_flags, t_error, truncation_flags
+from stepnf.flags import new_flag
+from stepnf.nf.evaluators import (Tolerances, dnf, dnf_uses_factorisation, md_full, resonance_flags, retained_set,
+                                   smd_full)
+from stepnf.methods import DNF, MD, MD_FULL, MODAL_EVALUATORS, SMD_FULL, method
+from stepnf.nf.linearised import Spectrum
+from stepnf.pipeline.context import full_order_context
+from stepnf.pipeline.master import MasterData
+from stepnf.pipeline.state import StageView
+
+
+def modal_method(name: str, p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, tol: Tolerances,
+                 labels: list, floor: np.ndarray | float | None = None) -> MethodResult:
+    """The modal evaluator ``name`` ("nf", "md_modal" or "smd_modal": :data:`~stepnf.methods.MODAL_EVALUATORS`)
+    of master ``p`` over modes ``S``."""
+    if name not in MODAL_EVALUATORS:
+        raise KeyError(name)
+    return method(name).function()(p, omega, g, h, S, tol=tol, labels=labels, floor=floor)
+
+
+def run_modal(state: StageView, d: MasterData, ev: str) -> MethodResult:
+    """A modal evaluator over the retained set, with T again at the check amplitude and truncation flags."""
+    S = retained_set(d.p, state.n_ret, state.m)
+    r = modal_method(ev, d.p, state.omega, d.g_mod, d.h_mod, S, state.tol, state.labels, d.floor)
+    if d.g_chk is not None:
+        r2 = modal_method(ev, d.p, state.omega, d.g_chk, d.h_chk, S, state.tol, state.labels, d.floor)
+        r.T_error = t_error(r.T, r2.T)
+    frac = captured_share(d.p, d.st, state.full, d.g_all, S, state.M)
+    if frac is not None:
+        r.flags += truncation_flags(r, frac, len(S))
+    return r
+
+
+def run_dnf(state: StageView, d: MasterData) -> MethodResult:
+    """Direct normal form on the whole mesh, flagged for 1:2 resonances; keeps ``y = K^+ Gv`` in ``d.y``
+    (given there already: not solved again)."""
+    p, st, omega = d.p, d.st, state.omega
+    dG, dh = check_differences(st)
+    r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh, y=d.y, z=d.z)
+    r.flags = merge_flags(r.flags, one_two_flags(p, omega[p], st, state.basis, full_order_context(state),
+                                                 floor_scale(st, state.M, state.tol), state.tol, state.adapter,
+                                                 state.counters))
+    return r
+
+
+def factorises(state: StageView, d: MasterData, ev: str) -> bool:
+    """True when evaluator ``ev`` of master ``d.p`` needs a new factorisation: DNF with ``4 w_p^2``
+    outside what the computed spectrum can solve (:func:`~stepnf.nf.evaluators.dnf_uses_factorisation`)."""
+    return method(ev).shift_above_master and dnf_uses_factorisation(state.omega[d.p], full_order_context(state))
+
+
+def computed_spectrum(state: StageView) -> Spectrum:
+    """The computed modes ``[R, Phi]``, their ``w^2`` (rigid: 0) and ``M [R, Phi]``, for the linearised
+    ``T_error``: the deflated solver's own arrays when it runs (no new product), else computed here."""
+    defl = full_order_context(state).deflated
+    if defl is not None:
+        return Spectrum(defl.Psi, defl.lam, defl.MPsi)
+    R = state.basis.rigid
+    modes = np.column_stack([R, state.phi]) if R.shape[1] else state.phi
+    return Spectrum(modes, np.concatenate([np.zeros(R.shape[1]), state.omega**2]), state.M @ modes)
+
+
+def check_differences(st) -> tuple[np.ndarray | None, float]:
+    """``(Gv - Gv_check, h - h_check)`` of a targeted STEP, ``(None, 0)`` without a check amplitude."""
+    if st.Gv_check is None:
+        return None, 0.0
+    return st.Gv - st.Gv_check, st.h - st.h_check
+
+
+def run_smd_full(state: StageView, d: MasterData) -> MethodResult:
+    """Static modal derivatives at full order (reusing DNF's K^+ solve when DNF ran first).
+
+    ``T_error`` is the first-order change of T between the STEP amplitudes (no solve at the check amplitude).
+    """
+    p, st, omega = d.p, d.st, state.omega
+    dG, dh = check_differences(st)
+    return smd_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), y=d.y, dGv=dG, dh=dh,
+                    spectrum=computed_spectrum(state) if dG is not None else None)
+
+
+def run_md_full(state: StageView, d: MasterData) -> MethodResult:
+    """Modal derivatives at full order (bordered solves), the master's twins excluded, resonances flagged.
+
+    ``T_error`` is the first-order change of T between the STEP amplitudes (no solve at the check amplitude).
+    """
+    p, st, omega, twins = d.p, d.st, state.omega, d.twins
+    tw = state.phi[:, twins] if twins else None
+    nr = state.basis.rigid.shape[1]
+    dG, dh = check_differences(st)
+    r = md_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), tw, g=d.g_all, tol=state.tol,
+                floor=d.floor, exclude=[nr + p] + [nr + t for t in twins], twin_index=twins, labels=state.labels,
+                dGv=dG, dh=dh, spectrum=computed_spectrum(state) if dG is not None else None, theta=d.theta)
+    r.flags += resonance_flags(MD, p, omega, d.g_all, [s for s in range(state.m) if s not in twins], 1.0,
+                               state.tol, state.labels, d.floor)
+    return r
+
+
+#: How the pipeline runs each full-order evaluator (:data:`~stepnf.methods.FULL_EVALUATORS`).
+FULL_RUNS = {DNF: run_dnf, SMD_FULL: run_smd_full, MD_FULL: run_md_full}
+
+
+def run_method(state: StageView, d: MasterData, name: str, ev: str) -> MethodResult:
+    """Method ``name`` (evaluator ``ev``) of master ``d.p``, named, with its STEP-accuracy flag and Gamma."""
+    r = run_modal(state, d, ev) if ev in MODAL_EVALUATORS else FULL_RUNS[ev](state, d)
+    r.method = name
+    if ev in MODAL_EVALUATORS:
+        r.retained_modes = len(retained_set(d.p, state.n_ret, state.m))
+    tolerance = state.policy.tolerance
+    if r.T_error is not None and r.T_error > tolerance:
+        r.flags.append(new_flag("step_accuracy", value=float(r.T_error),
+                                message=f"T changes by {r.T_error:.2e} (relative) between the two "
+                                        f"STEP amplitudes; tolerance {tolerance:.1e}"))
+    if state.gscale is not None:
+        r.gamma = state.gscale.gamma(r.T, d.w_max)
+    return r
