@@ -25,7 +25,7 @@ evaluator is named by its dotted path and imported on first use (:meth:`Method.f
 A new method: its function in :mod:`stepnf.nf` (a modal one takes ``(p, omega, g, h, S, *, tol, labels,
 floor)`` like :func:`~stepnf.nf.evaluators.nf_modal`), one :class:`Method` in the table below (the scene
 check, the STEP plan and the deflated solves read it from there), and, at full order, its run on the mesh
-in :data:`stepnf.pipeline.method.FULL_RUNS`.
+in :data:`stepnf.pipeline.apply_method.FULL_RUNS`.
 """
 from __future__ import annotations
 

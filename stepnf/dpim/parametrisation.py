@@ -32,7 +32,7 @@ time derivative acts on ``cos(m theta)`` as ``-(m Omega)^2``, invariance
 ``w_q(theta) = sum_m Y[q, m] cos(m theta)``; these are evaluated at
 J = (N + 1) / 2 phase nodes shared by every order (DCT-II/IV nodes, exact) by
 polarisation of f, each probe direction sent once for all orders
-(:mod:`stepnf.dpim.forcing`): one batched force call per order.
+(:mod:`stepnf.dpim.nonlinear_terms`): one batched force call per order.
 At the resonant ``(p = 2k+1, m = 1)`` the left side is singular; its
 solvability ``phi^T rhs = 0`` gives ``S_k = phi^T F[p, 1]`` (with the
 normalisation ``phi^T M Y[p, 1] = 0``, p >= 3), hence ``c_k``, and ``Y[p, 1]``
@@ -70,7 +70,7 @@ from stepnf.runtime.counters import Counters
 from stepnf.dpim.backbone import Backbone
 from stepnf.dpim.solves import ShiftedSolves, Solvers
 from stepnf.errors import NumericalError
-from stepnf.dpim.forcing import OrderForcing
+from stepnf.dpim.nonlinear_terms import OrderForcing
 from stepnf.dpim.polarisation import ForceBatch
 
 DENSE_SPECTRUM_LIMIT = 2000

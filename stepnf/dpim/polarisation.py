@@ -10,7 +10,7 @@ probe scale ``s > 0``::
     H(u, v, w) = (1/24) sum_{s2, s3 = +-1} s2 s3 H3(u + s2 v + s3 w)   (8 evaluations)
 
 All exact for a cubic f (round-off aside); the DPIM reuses these formulas with probe directions
-shared across its orders (:mod:`stepnf.dpim.forcing`). Every field of one request goes
+shared across its orders (:mod:`stepnf.dpim.nonlinear_terms`). Every field of one request goes
 to the black box in ONE batched call ``forces(U)``, ``U`` of shape ``(m, n)``
 (one field per row: the convention of
 :meth:`stepnf.plugin.adapter.SolverAdapter.internal_forces` and of

@@ -23,7 +23,7 @@ from stepnf.keys.checks import check_number, describe_value
 from stepnf.errors import SceneError
 from stepnf.keys.schema import Key, Schema
 
-#: Orders: 3 (DNF's T) up to 25; the force evaluations grow like N^3.5 (``stepnf.dpim.forcing.planned_evaluations``:
+#: Orders: 3 (DNF's T) up to 25; the force evaluations grow like N^3.5 (``stepnf.dpim.nonlinear_terms.planned_evaluations``:
 #: 176 per mode at 7, 2336 at 15), 25 already costs ~1.5e4 per mode, and the series' radius of convergence
 #: rarely rewards more.
 ORDER_RANGE = (3, 25)

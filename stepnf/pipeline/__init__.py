@@ -12,7 +12,7 @@ For a solver adapter (:func:`stepnf.pipeline.run.run_adapter` runs them in this 
     the eigen-solve, mode labels, the master modes, the run's model flags.
 ``step`` (:mod:`.step`)
     the STEP force (or tangent) evaluations: targeted per master, and the full plan when asked.
-``evaluators`` (:mod:`.evaluate`, :mod:`.method`, :mod:`.master`, :mod:`.context`)
+``evaluators`` (:mod:`.evaluate`, :mod:`.apply_method`, :mod:`.master`, :mod:`.context`)
     NF/DNF, MD, SMD and the diagnostics of every master mode, with the full-order linear algebra
     built once, on first use.
 ``backbone`` (:mod:`.backbone`)

@@ -35,7 +35,7 @@ import numpy as np
 from stepnf.nf.coefficient import json_float
 from stepnf.dpim.backbone_report import WMax, backbone_report, transverse_operator
 from stepnf.dpim.parametrisation import DPIM, DPIMResult, DPIMTolerances, ModeSpectrum
-from stepnf.dpim.forcing import planned_evaluations
+from stepnf.dpim.nonlinear_terms import planned_evaluations
 from stepnf.dpim.solves import Solvers
 from stepnf.errors import NoSingleModeManifold, SceneError
 from stepnf.flags import DIVERGES_REASON, STEP_UNUSABLE, backbone_invalidating, kind_of, new_flag

@@ -18,7 +18,7 @@ from stepnf.nf.gamma import gamma_scale
 from stepnf.nf.manifold_checks import rigid_flags, twin_flags
 from stepnf.pipeline.context import full_order_context
 from stepnf.pipeline.master import MasterData, master_data, mode_record
-from stepnf.pipeline.method import factorises, run_method
+from stepnf.pipeline.apply_method import factorises, run_method
 from stepnf.pipeline.prefetch import prefetch_deflated
 from stepnf.io.results import ModeResult
 from stepnf.pipeline.outputs import Evaluations, RunContext, RunModel, RunModes, StepTerms

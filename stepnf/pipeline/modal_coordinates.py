@@ -33,7 +33,7 @@ from stepnf.pipeline.plan import resolve_masters
 from stepnf.runtime.progress import Progress
 from stepnf.io.results import ModeResult, RunResult
 from stepnf.scene.parse import Scene
-from stepnf.pipeline.method import modal_method
+from stepnf.pipeline.apply_method import modal_method
 from stepnf.pipeline.modal_forces import ModalSystem, modal_system
 from stepnf.pipeline.outputs import BackboneOutput, Backbones, Evaluations, RunContext
 from stepnf.pipeline.results import scene_summary, with_backbones, write_results

@@ -19,7 +19,7 @@ from stepnf.verify.periodic import Shooting
 from stepnf.runtime.progress import Progress
 from stepnf.io.results import read_hdf5, write_hdf5
 from stepnf.scene.parse import Tolerances, parse_scene
-from stepnf.pipeline.method import modal_method
+from stepnf.pipeline.apply_method import modal_method
 from stepnf.pipeline.modal_coordinates import modal_dpim, run_modal_model
 from stepnf.pipeline.modal_forces import ModalSystem, modal_system
 

@@ -17,7 +17,7 @@ from scipy.special import ellipk
 from stepnf.runtime.counters import Counters
 from stepnf.dpim.parametrisation import DPIM, DPIMTolerances, ModeSpectrum, phase_nodes, shared_nodes
 from stepnf.dpim.solves import Solvers
-from stepnf.dpim.forcing import planned_evaluations
+from stepnf.dpim.nonlinear_terms import planned_evaluations
 from stepnf.errors import NumericalError
 from stepnf.nf.evaluators import FullOrderContext, dnf
 from stepnf.linalg.factorization import PseudoInverse
@@ -64,7 +64,7 @@ def test_duffing_error_decreases_geometrically(g):
     assert all(c["force_calls"] == 1 for c in res.counts)
     # 1 dof: equal unit vectors and zero terms take the shortcuts, so at most the plan (equality: 2-dof test)
     assert all(c["force_evaluations"] <= n for c, n in zip(res.counts, planned_evaluations(15)))
-    # directions shared by the orders (stepnf.dpim.forcing): 2336 and 176, against 5920 and 368 term by term
+    # directions shared by the orders (stepnf.dpim.nonlinear_terms): 2336 and 176, against 5920 and 368 term by term
     # (and 2624 and 200 with a probe along u - v for every pair)
     assert sum(planned_evaluations(15)) == 2336 and sum(planned_evaluations(7)) == 176
 
@@ -213,13 +213,13 @@ def test_polarisation_applies_K_only_to_lone_cubes_and_may_write_over_its_fields
 
 
 def test_shared_forcing_equals_the_tensors_at_every_order():
-    """stepnf.dpim.forcing: F[p, m] of orders 2..9 from directions shared across orders (H(u, v, w) by
+    """stepnf.dpim.nonlinear_terms: F[p, m] of orders 2..9 from directions shared across orders (H(u, v, w) by
     inclusion-exclusion of seven H3 values) equals the contraction of the exact tensors with the node
     vectors w_q(theta), then the cosine transform. Random 9-dof cubic with |K|, |G|, |H| ~ 10 and probe 1:
     round-off of polarisation ~1e-15 of the terms (module docstring of stepnf.dpim.polarisation), summed over
     <= 20 terms per order and amplified by the DCT (condition <= sqrt 2): 1e-12 of the largest term
     (measured <= 2.8e-15)."""
-    from stepnf.dpim.forcing import OrderForcing
+    from stepnf.dpim.nonlinear_terms import OrderForcing
 
     n, N = 9, 9
     M, K, G, H = random_system(n, 3)

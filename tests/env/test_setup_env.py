@@ -75,8 +75,9 @@ def os_release(tmp_path: Path, version: str) -> Path:
 
 
 def pytest_without_ccx(args: list[str], cwd: Path, release: Path) -> subprocess.CompletedProcess:
-    """``python -m pytest ARGS`` with no ccx on PATH (PATH is an empty folder), as on Debian ``release``."""
-    empty = cwd / "empty-path"
+    """``python -m pytest ARGS`` with no ccx on PATH (PATH is an empty folder beside ``release``, in the test's
+    temporary folder: never in the checkout), as on Debian ``release``."""
+    empty = release.parent / "empty-path"
     empty.mkdir(exist_ok=True)
     env = {**os.environ, "PATH": str(empty), "STEPNF_TEST_OS_RELEASE": str(release),
            "PYTHONPATH": str(TESTS)}

@@ -14,7 +14,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import stepnf.pipeline.run as pipeline
-import stepnf.pipeline.method as methods
+import stepnf.pipeline.apply_method as methods
 from stepnf.runtime.counters import Counters
 from stepnf.nf.diagnostics import INVERSE_MASS_RTOL, captured_fraction, inverse_mass_norm2
 from stepnf.errors import NumericalError

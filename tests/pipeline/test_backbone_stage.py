@@ -16,7 +16,7 @@ import pytest
 from stepnf.cli.main import main
 from stepnf.runtime.counters import Counters
 from stepnf.dpim.parametrisation import DPIM
-from stepnf.dpim.forcing import planned_evaluations
+from stepnf.dpim.nonlinear_terms import planned_evaluations
 from stepnf.pipeline.run import run_scene
 from stepnf.scene.parse import load_scene
 from stepnf.cli.show import stored_result

@@ -66,7 +66,7 @@ def test_killed_backbone_resumes_from_its_stored_orders(tmp_path, monkeypatch):
     """Killed inside the DPIM of the first master (order 6), the rerun reuses DNF's targeted plan and the
     stored forces of orders 2..5 (the fields are checkpointed before their forces overwrite them in the
     same array: ForceEvaluator(out=U)) and gives the same backbone (the same forces: identical numbers)."""
-    from stepnf.dpim.forcing import planned_evaluations
+    from stepnf.dpim.nonlinear_terms import planned_evaluations
 
     use_solver(monkeypatch, lambda name: Crashing)
 

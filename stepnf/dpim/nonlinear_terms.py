@@ -1,4 +1,5 @@
-"""The nonlinear forcing of every DPIM order from the black box: probe directions shared across orders.
+"""The nonlinear terms of every DPIM order from the black box (the right-hand sides of its homological
+equations, called its "forcing" in the DPIM literature; no external force): probe directions shared across orders.
 
 Order p of :meth:`stepnf.dpim.parametrisation.DPIM.parametrise` needs, at its phase nodes ``theta_l``, the
 ``rho^p`` part of ``G(x, x) + H(x, x, x)`` on the manifold (ordered sums)::
