@@ -21,14 +21,13 @@ one_blas_thread()  # under `ulimit -v`, before numpy starts OpenBLAS (stepnf.run
 from typing import TYPE_CHECKING  # noqa: E402
 
 from stepnf.errors import AdapterError, SceneError, SolverRunError, StepnfError, UnknownSolverError  # noqa: E402
+from stepnf.runtime.lazy import lazy_exports  # noqa: E402
 
 #: The names below import numpy and scipy: loaded when first asked for (``stepnf.SolverAdapter``), so that
 #: ``import stepnf`` itself imports nothing heavy and the command line (:mod:`stepnf.cli.console`) can turn a
 #: memory limit too low for numpy into a message.
 _LAZY = {"SolverAdapter": "plugin.adapter", "MethodResult": "nf.coefficient", "backbone_T": "nf.coefficient",
-         "ModalModel": "plugin.modal_model", "run": "api.runner", "open": "api.reader", "RunView": "api.view"}
-#: Exported under another name than the one it has in its module.
-_RENAMED = {"open": "open_run"}
+         "ModalModel": "plugin.modal_model", "run": "api.runner", "open": "api.reader:open_run", "RunView": "api.view"}
 
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers
@@ -40,17 +39,8 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers
     from stepnf.api.view import RunView
 
 
-def __getattr__(name: str):
-    """``stepnf.SolverAdapter``, ``stepnf.run``, ``stepnf.open`` and the other :data:`_LAZY` names, imported on
-    first use."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from importlib import import_module
-
-    value = getattr(import_module(f".{module}", __name__), _RENAMED.get(name, name))
-    globals()[name] = value
-    return value
+#: ``stepnf.SolverAdapter``, ``stepnf.run``, ``stepnf.open`` and the other :data:`_LAZY` names, imported on first use
+__getattr__ = lazy_exports(__name__, _LAZY, globals())
 
 
 #: ``open`` is left out on purpose: ``from stepnf import *`` must not replace the built-in ``open``

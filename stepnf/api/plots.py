@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from stepnf.io.results import RunResult, label_text
+from stepnf.io.results import RunResult
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -44,22 +44,17 @@ def plot_backbone(view: Any, result: RunResult, mode: int | None = None, ax: "Ax
         raise ValueError(f"mode {index} has no backbone in this run (masters with one: {have})")
     if ax is None:
         _, ax = pyplot().subplots(figsize=(5.5, 4.0))
+    from stepnf.report.backbone_plot import decorate_backbone_axes, draw_backbone
+
     record = next(m for m in result.modes if m.index == index)
     if index in result.backbones:
-        from stepnf.report.backbone_plot import draw_backbone
-
         draw_backbone(ax, record, result.backbones[index])
         return ax
     bb = view.mode(index).backbone
     ax.plot(bb.amplitude, bb.frequency_ratio, "ko-", ms=3, lw=1.2, label=f"order {bb.order} (stored points)")
     if bb.valid_up_to is not None:
         ax.axvline(bb.valid_up_to, color="tab:red", lw=0.8, ls=":", label="validity limit")
-    ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
-    ax.set_xlabel("amplitude A of q_p")
-    ax.set_ylabel("w_NL / w")
-    ax.set_title(f"mode {index} {label_text(record.label)}", fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    decorate_backbone_axes(ax, record)
     return ax
 
 

@@ -89,6 +89,11 @@ def draw_backbone(ax, mode, res) -> None:
         sec = ax.secondary_xaxis("top", functions=(lambda x, a_=a_, w_=w_: _linear(x, a_, w_),
                                                    lambda w, a_=a_, w_=w_: _linear(w, w_, a_)))
         sec.set_xlabel("W_max / h", fontsize=8)
+    decorate_backbone_axes(ax, mode)
+
+
+def decorate_backbone_axes(ax, mode) -> None:
+    """Axis labels, title (master ``mode``'s index and label), grid and legend of one backbone panel."""
     ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
     ax.set_xlabel("amplitude A of q_p")
     ax.set_ylabel("w_NL / w")

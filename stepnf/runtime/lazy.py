@@ -12,14 +12,16 @@ from typing import Any, Callable
 
 def lazy_exports(package: str, names: dict[str, str], namespace: dict[str, Any]) -> Callable[[str], Any]:
     """The ``__getattr__`` of ``package``: ``names`` maps an exported name to the module that defines it,
-    relative to the package (``"parse"``) or absolute (``"stepnf.keys.schema"``); the value is cached in
+    relative to the package (``"parse"``) or absolute (``"stepnf.keys.schema"``), followed by
+    ``":attr"`` when the module calls it otherwise (``"api.reader:open_run"``); the value is cached in
     ``namespace`` on first use."""
 
     def __getattr__(name: str) -> Any:
-        module = names.get(name)
-        if module is None:
+        spec = names.get(name)
+        if spec is None:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
-        value = getattr(import_module(module if module.startswith("stepnf.") else f"{package}.{module}"), name)
+        module, _, attr = spec.partition(":")
+        value = getattr(import_module(module if module.startswith("stepnf.") else f"{package}.{module}"), attr or name)
         namespace[name] = value
         return value
 
