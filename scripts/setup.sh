@@ -37,8 +37,9 @@ apt_packages=(python3-venv python3-setuptools python3-wheel python3-numpy python
 if [ "$with_tests" -eq 1 ]; then
   # python3-nbclient, python3-ipykernel, python3-nbformat: the suite executes docs/plate.ipynb;
   # python3-pandas: stepnf's optional DataFrame view (RunView.to_dataframe), used by that notebook
+  # python3-gmsh: the tests write Gmsh meshes (.inp with facet elements, .msh) with Gmsh's own API
   apt_packages+=(debootstrap podman python3-vtk9 mpi-default-bin
-    python3-nbclient python3-ipykernel python3-nbformat python3-pandas)
+    python3-nbclient python3-ipykernel python3-nbformat python3-pandas python3-gmsh)
 fi
 installed() {
   local status

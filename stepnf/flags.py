@@ -14,6 +14,7 @@ sources). Each kind is declared with
   its threshold);
 * ``backbone_invalid``: whether the master's backbone gets no validity range when a method of
   that master carries it;
+* ``gamma_na``: whether it makes Gamma (alone: T stays) n/a in the table (:func:`gamma_unusable`);
 * ``names_mode``: whether it carries the index of the mode it concerns (``"mode"``);
 * ``template``: the gist of its message (the emitting module writes the message itself, with numbers).
 
@@ -53,6 +54,10 @@ class FlagKind:
     template: str = ""
     #: with ``backbone_invalid``: the backbone block's ``valid_reason`` (its ``valid_up_to`` is then 0)
     backbone_reason: str = ""
+    #: whether it makes Gamma (only Gamma: T stays) n/a in the table (:func:`gamma_unusable`)
+    gamma_na: bool = False
+    #: what the user may try when it makes T n/a: a ``hint:`` line under the table (:func:`na_hint`)
+    hint: str = ""
 
 
 _KINDS = (
@@ -70,7 +75,23 @@ _KINDS = (
     FlagKind("modal_truncation", "line", t_na="value",
              template="{method}: the n retained modes carry only x% of G(phi_p, phi_p)"),
     FlagKind("step_accuracy", "line", t_na="value",
-             template="T (or STEP's G, h) changes by x (relative) between the two STEP amplitudes"),
+             template="T (or STEP's G, h) changes by x (relative) between the two STEP amplitudes",
+             hint="T depends on the STEP amplitude: at a small amplitude the solver's force digits do not resolve "
+                  "the nonlinear forces (the calculix adapter's .dat forces carry 7). Try a larger [analysis.step] "
+                  "relative_amplitude (a multiple of the thickness or characteristic length: e.g. 5, then 20; the "
+                  "two amplitudes should agree), or [analysis.step] method = \"tangent\" where the solver offers "
+                  "tangent stiffnesses (calculix does)"),
+    FlagKind("t_roundoff", "line", t_na="value",
+             template="rounding of the forces and the solves leaves T an error of up to x (relative): its terms "
+                      "cancel (a slender structure)",
+             hint="T is a small difference of large terms here (a slender structure) and the forces' rounding "
+                  "reaches its digits. The bound falls as 1/amplitude^2: set a larger [analysis.step] "
+                  "relative_amplitude (e.g. 20, then 100; a solid model's force is an exact cubic, a large "
+                  "amplitude costs nothing), or leave both amplitude keys out and stepnf raises it itself"),
+    FlagKind("step_amplitude_raised", "line",
+             template="rounding left T too few digits: STEP again at k x the amplitude, the better T kept"),
+    FlagKind("manifold_probe", "line",
+             template="STEP along the quadratic manifold gives T = x with a rounding bound e; the better T kept"),
     FlagKind("twin_driven", "line", t_na="always", backbone_invalid=True, names_mode=True,
              backbone_reason="no single-mode manifold (a degenerate twin is driven)",
              template="mode t, a degenerate twin of master mode p, is driven by its nonlinear forces: a "
@@ -89,6 +110,12 @@ _KINDS = (
     FlagKind("backbone_fold", "block", template="the amplitude A(rho) stops growing"),
     FlagKind("backbone_unreached", "block", template="the parametrisation never reaches an amplitude asked"),
     FlagKind("backbone_twin", "block", names_mode=True, template="the backbone is that of the cos twin"),
+    FlagKind("backbone_failed", "block",
+             template="the DPIM of the master failed (a numerical error, unusable forces): no backbone, "
+                      "T and the rest of the run kept, the command exits 3"),
+    FlagKind("gamma_not_transverse", "column", gamma_na=True,
+             template="the transverse direction carries x% (< GAMMA_SHARE_MIN) of the mode's kinetic energy: Gamma "
+                      "refers to a displacement the mode barely has"),
 )
 #: kind name -> :class:`FlagKind`
 CATALOGUE: dict[str, FlagKind] = {k.name: k for k in _KINDS}
@@ -150,9 +177,10 @@ def t_unusable(r: Any) -> tuple[str, str] | None:
     """``(kind, reason)`` when the table must show ``r.T`` (a :class:`stepnf.nf.coefficient.MethodResult`) as
     n/a, else None. The reasons, in this order: T infinite or NaN (the method diverges); a flag whose
     kind is ``t_na = "always"``; the retained modes carry less than :data:`TRUNCATION_UNUSABLE` of
-    G(phi_p, phi_p) (``r.extra["captured_fraction"]`` or the ``modal_truncation`` flag's value); T
-    changes by :data:`STEP_UNUSABLE` or more between the two STEP amplitudes (``r.T_error`` or the
-    ``step_accuracy`` flag's value)."""
+    G(phi_p, phi_p) (``r.extra["captured_fraction"]`` or the ``modal_truncation`` flag's value); the
+    rounding bound of T (``t_roundoff`` flag's value, :mod:`stepnf.nf.roundoff`) is :data:`STEP_UNUSABLE`
+    or more; T changes by :data:`STEP_UNUSABLE` or more between the two STEP amplitudes (``r.T_error`` or
+    the ``step_accuracy`` flag's value)."""
     flags = [f for f in (r.flags or []) if isinstance(f, Mapping)]
     if not _finite(r.T):
         why = next((f for f in flags if kind_of(f) is not None and kind_of(f).name.startswith("internal_resonance")),
@@ -179,6 +207,13 @@ def t_unusable(r: Any) -> tuple[str, str] | None:
         n = f"the {r.retained_modes} retained modes" if r.retained_modes else "the retained modes"
         return ("modal_truncation",
                 f"{n} carry {100 * float(frac):.2g}% of G(phi_p, phi_p): the modal sum misses the rest")
+    for f in flags:
+        v = _value(f) if f.get("kind") == "t_roundoff" else None
+        if v is not None and v >= STEP_UNUSABLE:
+            size = f"up to {100 * v:.3g}%" if math.isfinite(v) else "larger than T itself (T = 0 within it)"
+            return ("t_roundoff", f"rounding of the forces and the solves leaves T an error {size} (its terms "
+                                  "cancel, or every term is below the forces' rounding): not even its sign is "
+                                  "established")
     err = r.T_error
     if err is None:
         values = [_value(f) for f in flags if f.get("kind") == "step_accuracy" and f.get("mode") is None]
@@ -187,6 +222,23 @@ def t_unusable(r: Any) -> tuple[str, str] | None:
     if err is not None and float(err) >= STEP_UNUSABLE:
         return ("step_accuracy", f"T changes by {100 * float(err):.3g}% between the two STEP amplitudes: "
                                  "not even its sign is established")
+    return None
+
+
+def na_hint(kind: str) -> str:
+    """The ``hint`` of flag kind ``kind`` (what to try when it makes T n/a); '' when it has none."""
+    k = CATALOGUE.get(kind)
+    return k.hint if k is not None else ""
+
+
+def gamma_unusable(r: Any) -> str | None:
+    """Why the table must show ``r.gamma`` (a :class:`stepnf.nf.coefficient.MethodResult`) as n/a while T stays:
+    the message of its first flag whose kind is ``gamma_na``; None otherwise (T's own n/a,
+    :func:`t_unusable`, takes Gamma with it)."""
+    for f in r.flags or []:
+        k = kind_of(f) if isinstance(f, Mapping) else None
+        if k is not None and k.gamma_na:
+            return str(f.get("message") or k.template)
     return None
 
 
@@ -201,9 +253,11 @@ def backbone_invalidating(flags: Iterable[Mapping[str, Any]]) -> dict | None:
 
 #: ``valid_reason`` of a backbone whose DPIM stopped at a singular ``K - (m w)^2 M`` (exact 1:m resonance)
 DIVERGES_REASON = "the parametrisation diverges (a mode at exactly a harmonic of the master)"
+#: ``valid_reason`` of a backbone whose DPIM failed (a numerical error: the block's ``failed_reason`` says which)
+BACKBONE_FAILED_REASON = "the backbone failed (a numerical error in its DPIM)"
 #: ``valid_reason`` of a backbone block that has no validity range at all (its ``valid_up_to`` is 0)
-NO_VALIDITY_REASONS = ("forces inaccurate", DIVERGES_REASON) + tuple(k.backbone_reason for k in _KINDS
-                                                                     if k.backbone_invalid)
+NO_VALIDITY_REASONS = ("forces inaccurate", DIVERGES_REASON, BACKBONE_FAILED_REASON) + tuple(
+    k.backbone_reason for k in _KINDS if k.backbone_invalid)
 
 
 def json_safe(x: Any) -> Any:

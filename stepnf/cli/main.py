@@ -3,7 +3,8 @@
 ``stepnf verify SCENE`` (backbones against the full model's periodic orbits).
 
 Exit codes: 0 success; 2 bad input (scene, unknown solver, bad model, a file given to show or fig4); 3 a
-solver or numerical failure, or a file that cannot be written; 4 a sweep with
+solver or numerical failure, or a file that cannot be written (also a run whose T table was computed and
+printed but the backbone of a master failed); 4 a sweep with
 failed cases; 1 anything unexpected (a bug: the message says so, and ``stepnf --debug ...`` prints the
 traceback); interrupted, 128 + the signal: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (:mod:`stepnf.runtime.signals`).
 """
@@ -115,7 +116,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         for line in draw_run_figures(scene, result):
             print(line, file=sys.stderr)
     show(result)
-    return 0
+    failed = result.failed_backbones()
+    for p, reason in failed:  # T and the results are there (printed, stored); what was asked is not all there
+        print(f"stepnf: solver failure: the backbone of master mode {p} failed (the rest of the run is printed "
+              f"and stored): {reason}", file=sys.stderr)
+    return 3 if failed else 0
 
 
 def _cmd_modes(args: argparse.Namespace) -> int:
@@ -154,7 +159,8 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     from stepnf.verify.command import failed_orbits, format_report, verify_scene
 
     say = None if args.quiet else (lambda s: print(f"stepnf: {s}", file=sys.stderr, flush=True))
-    doc = verify_scene(load_scene(args.scene), amplitudes=args.amplitudes, periods=args.periods, progress=say)
+    doc = verify_scene(load_scene(args.scene), amplitudes=args.amplitudes, periods=args.periods, progress=say,
+                       tangent=args.tangent, per_period=args.steps_per_period)
     print(json.dumps(doc, indent=2) if args.json else format_report(doc))
     failed = failed_orbits(doc)
     if failed:  # the checks that worked are printed above; the run as a whole did not verify
@@ -359,6 +365,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     p_vf.add_argument("--amplitudes", nargs="+", type=float, metavar="A",
                       help="amplitudes of the master coordinate q = phi^T M x (default: 3 up to the validity limit)")
     p_vf.add_argument("--periods", type=float, default=3.0, help="periods integrated (large models; default 3)")
+    p_vf.add_argument("--tangent", choices=("auto", "modified", "tangent", "differences"), default="auto",
+                      help="the time integration's Newton: modified (K only, then a secant iteration on K), tangent "
+                      "(the model's own), differences (Newton-Krylov, J v by directional differences of the forces), "
+                      "auto (default: modified, then the model's tangent, else secant and differences); a step none "
+                      "converges is halved, 3 times at most")
+    p_vf.add_argument("--steps-per-period", type=int, metavar="N", help="time steps per period of the coarse "
+                      "integration (halved once for Richardson; default 71) or of the implicit shooting (default 32)")
     p_vf.add_argument("--json", action="store_true", help="print one JSON document on stdout instead of the table")
     p_vf.add_argument("--quiet", "-q", action="store_true", help="no progress messages on stderr")
     p_vf.set_defaults(func=_cmd_verify)

@@ -22,7 +22,7 @@ from stepnf.linalg.modal_analysis import degenerate_groups, modal_analysis, orie
 from stepnf.plugin.modal_model import ModalModel
 from stepnf.pipeline.model import model_stage, open_model
 from stepnf.pipeline.outputs import RunContext
-from stepnf.pipeline.plan import check_elastic_modes, resolve_masters
+from stepnf.pipeline.plan import check_elastic_modes, check_mechanism, resolve_masters
 from stepnf.runtime.progress import Progress
 from stepnf.io.results import label_json, label_text
 from stepnf.scene.parse import Scene
@@ -45,6 +45,8 @@ class ModeSurvey:
     eigensolver: str = ""
     masters: list[int] = field(default_factory=list)  # the scene's master modes among those listed
     masters_note: str | None = None  # why the scene's master modes could not all be placed
+    mechanism: str | None = None  # boundary conditions leaving rigid-body modes: what `stepnf run` refuses, and why
+    massless: int = 0  # directions without mass (a singular M) left out of a dense eigen-solve
 
     @property
     def n_modes(self) -> int:
@@ -68,7 +70,8 @@ class ModeSurvey:
         return {"solver": self.solver, "n_dofs": self.n_dofs, "n_rigid": self.n_rigid,
                 "eigensolver": self.eigensolver, "labels": self.has_labels,
                 "degenerate_groups": self.degenerate_groups, "masters": self.masters,
-                "masters_note": self.masters_note, "modes": modes}
+                "masters_note": self.masters_note, "mechanism": self.mechanism, "massless": self.massless,
+                "modes": modes}
 
     def to_json(self, **kw: Any) -> str:
         return json.dumps(self.to_dict(), allow_nan=False, **kw)
@@ -163,6 +166,11 @@ def _adapter_survey(scene: Scene, adapter: Any, n: int | None, progress: Progres
                                eigensolver=eig, rigid_candidates=model.candidates, progress=progress.message)
     check_elastic_modes(scene, basis)
     n_rigid = int(basis.rigid.shape[1])
+    try:  # the survey says what `stepnf run` would refuse, and lists the modes anyway
+        check_mechanism(scene, adapter, basis)
+        mechanism = None
+    except SceneError as exc:
+        mechanism = f"[{exc.key}]: {exc.message}"
     if n is not None and basis.n_elastic < n:
         raise _too_many(scene, n, basis.n_elastic, f"the model ({ndof} dofs, {n_rigid} rigid-body modes)")
     orient_degenerate(basis, M, probe_vector(X, dirs, ndof))
@@ -177,7 +185,8 @@ def _adapter_survey(scene: Scene, adapter: Any, n: int | None, progress: Progres
                       omega_bar=[scales.omega_bar(w) for w in omega] if scales is not None else None,
                       energy=kinetic_shares(phi, M, dirs), n_rigid=n_rigid, n_dofs=ndof,
                       degenerate_groups=[g for g in basis.degenerate_groups if min(g) < k],
-                      eigensolver=basis.solver, masters=[i for i in masters or [] if i < k], masters_note=note)
+                      eigensolver=basis.solver, masters=[i for i in masters or [] if i < k], masters_note=note,
+                      mechanism=mechanism, massless=basis.massless)
 
 
 def kinetic_shares(phi: np.ndarray, M: Any, dirs: np.ndarray | None) -> dict[str, np.ndarray] | None:
@@ -212,7 +221,12 @@ def format_survey(s: ModeSurvey) -> str:
     lines = [f"stepnf modes: {s.solver}{dofs}, first {s.n_modes} elastic modes ({s.eigensolver})",
              "  ".join(c.ljust(w) for c, w in zip(cols, widths)), "  ".join("-" * w for w in widths)]
     lines += ["  ".join(v.ljust(w) for v, w in zip(r, widths)).rstrip() for r in rows]
-    lines.append(f"rigid-body modes found: {s.n_rigid}")
+    lines.append(f"rigid-body modes found: {s.n_rigid}" + (" (null vectors of K, set aside before mode 0: [analysis] "
+                 "rigid_modes = \"auto\"; an integer rigid_modes fixes the count)" if s.n_rigid else ""))
+    if s.mechanism:
+        lines.append(f"mechanism: {s.mechanism}")
+    if s.massless:
+        lines.append(f"massless: M is singular: {s.massless} directions without mass (infinite eigenvalues) left out")
     if s.energy is not None:
         lines.append("columns " + ", ".join(dirs) + ": share of the mode's kinetic energy in that direction")
     else:

@@ -4,6 +4,8 @@
 with curved quadratic hexahedra; :class:`VolumeMesh` holds the result in
 meshio's naming and VTK's node order; :class:`ModeLabeler` gives the (k, n)
 labels of the modes of axisymmetric shells from any solid model's nodes.
+Users' meshes: :mod:`stepnf.geometry.inp` is the one ``.inp`` reader of every
+solver route, :mod:`stepnf.geometry.mesh_sets` the named sets of a meshio mesh.
 """
 from __future__ import annotations
 

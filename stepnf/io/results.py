@@ -41,6 +41,8 @@ class ModeResult:
     flags: list[dict] = field(default_factory=list)
     #: ``[analysis.backbone]``: the JSON block of :func:`stepnf.dpim.backbone_report.backbone_report` (None: not asked)
     backbone: dict[str, Any] | None = None
+    #: ``[analysis] transverse``: the share of the mode's kinetic energy in that direction (:mod:`stepnf.nf.gamma`)
+    transverse_share: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out = {
@@ -51,6 +53,7 @@ class ModeResult:
             "rho": json_float(self.rho),
             "rho_mode": self.rho_mode,
             "w_max": json_float(self.w_max),
+            "transverse_share": json_float(self.transverse_share),
             "step": {k: json_float(v) if isinstance(v, float) else v for k, v in self.step.items()},
             "flags": json_safe(self.flags),
             "methods": {k: v.to_dict() for k, v in self.methods.items()},
@@ -121,6 +124,12 @@ class RunResult:
     def to_json(self, **kw: Any) -> str:
         return json.dumps(self.to_dict(), allow_nan=False, **kw)
 
+    def failed_backbones(self) -> list[tuple[int, str]]:
+        """``(master index, reason)`` of every backbone whose DPIM failed (its block's ``failed``): the run kept
+        everything else, and ``stepnf run`` exits 3 after printing it."""
+        return [(m.index, str(m.backbone.get("failed_reason", ""))) for m in self.modes
+                if m.backbone and m.backbone.get("failed")]
+
 
 def versions() -> dict[str, str]:
     """Versions of stepnf and its numerical stack (stored with every result)."""
@@ -180,6 +189,8 @@ def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Pat
                     mg.attrs["na_kind"], mg.attrs["na_reason"] = verdict
             if m.backbone is not None:
                 g.attrs["backbone"] = json.dumps(json_safe(m.backbone), allow_nan=False)
+                if m.backbone.get("failed"):  # (also in the block) the DPIM of this master failed: why
+                    g.attrs["backbone_failed"] = str(m.backbone.get("failed_reason", ""))
         arr = f.create_group("arrays")
         for k, v in result.arrays.items():
             arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)

@@ -11,12 +11,18 @@ modes than the first batch holds, the next ones are computed with every mode
 found so far projected out, on the same factorisation, and merged
 (:mod:`stepnf.linalg.eigen_extension`); the adapter's eigen-solver starts over instead.
 
-Rigid-body modes are the eigenvalues with ``|w^2| <= rigid_tolerance * lambda_scale``
-where ``lambda_scale = max(diag K / diag M)`` bounds the largest eigenvalue
-in order of magnitude; computed rigid eigenvalues sit at round-off
-(~1e-16 lambda_scale), the lowest elastic ones of thin 3D shells near
-1e-8 lambda_scale, so the default 1e-11 leaves three decades either side. A
-scene may also state the count (``analysis.rigid_modes``).
+Rigid-body modes (``rigid_modes`` None, the scene's "auto") are decided from the model
+(:mod:`stepnf.linalg.null_space`): an eigenvalue with ``|w^2| <= rigid_tolerance * lambda_scale``
+(``lambda_scale = max(diag K / diag M)`` bounds the largest eigenvalue in order of magnitude) is
+only a candidate, rigid when K has a null vector there: the rigid-body fields of the dof
+coordinates that K does not resist, and any other eigenvector whose residual ``K x`` is at the
+round-off of K (a mechanism). A structure its conditions hold has none, however low its
+fundamental (a slender cantilever's lies near 1e-11 lambda_scale); a polynomial model with no
+zero eigenvalue has none. A scene may also state the count (``analysis.rigid_modes``).
+
+A semi-definite M (reduced integration, massless dofs) has infinite eigenvalues: the dense path
+then solves the pencil ``(M, K - sigma M)`` and drops them, saying how many (``massless``,
+``solver``); shift-invert Lanczos never reaches them.
 
 Degenerate groups (e.g. the sine and cosine companions of a (k, n) shell mode)
 are runs of elastic modes whose frequencies agree to ``degeneracy_tolerance``
@@ -28,7 +34,6 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -36,11 +41,16 @@ from stepnf.runtime.counters import Counters
 from stepnf.linalg.eigen_extension import extension_size, merged_modes, shift_invert_modes
 from stepnf.errors import NumericalError
 from stepnf.linalg.factorization import DENSE_LIMIT, matrix_diagonal
+from stepnf.linalg.null_space import (dense_modes, rigid_body_fields, rigid_field_count, rigid_indices,
+                                      rigid_modes_from, rigid_span)
 from stepnf.linalg.shifted import ShiftedFactorizer
 
 
 #: Room for rigid-body modes in a first eigen-solve that has to find them (a free 3D body has six).
 _RIGID_ROOM = 6
+#: Re-exported: callers import the rigid-body fields from here.
+__all__ = ["ModalBasis", "lambda_scale", "degenerate_groups", "modal_analysis", "extend_basis", "rigid_body_fields",
+           "rigid_modes_from", "modes_near", "probe_vector", "orient_degenerate"]
 
 
 @dataclass
@@ -64,6 +74,8 @@ class ModalBasis:
     #: the eigen-solver's factorisation of ``K - shift M`` (sparse path), reusable by later solves
     factorization: Any = None
     shift: float = 0.0
+    #: directions without mass (infinite eigenvalues of a semi-definite M) left out of a dense solve
+    massless: int = 0
 
     @property
     def n_elastic(self) -> int:
@@ -114,23 +126,25 @@ def degenerate_groups(omega: np.ndarray, tol: float) -> list[list[int]]:
     return groups
 
 
-def _split(lam: np.ndarray, vec: np.ndarray, M, scale: float, rigid_tol: float,
-           rigid_modes: int | None, degeneracy_tol: float, complete: bool, solver: str) -> ModalBasis:
+def _split(lam: np.ndarray, vec: np.ndarray, K, M, scale: float, rigid_tol: float,
+           rigid_modes: int | None, degeneracy_tol: float, complete: bool, solver: str,
+           n_rigid_fields: int | None = None) -> ModalBasis:
     order = np.argsort(lam)
     lam, vec = lam[order], vec[:, order]
     if rigid_modes is None:
-        r = int(np.sum(np.abs(lam) <= rigid_tol * scale))
+        rig = rigid_indices(lam, vec, K, scale, rigid_tol, n_rigid_fields)
     else:
-        r = int(rigid_modes)
-    if np.any(lam[r:] <= 0):
-        bad = lam[r:][lam[r:] <= 0]
+        rig = np.arange(int(rigid_modes))
+    ela = np.setdiff1d(np.arange(len(lam)), rig)
+    if np.any(lam[ela] <= 0):
+        bad = lam[ela][lam[ela] <= 0]
         raise NumericalError(
-            f"eigenvalues {bad[:5]} are zero or negative but above the rigid-body tolerance "
-            f"({rigid_tol:g} x {scale:.3e}): K is not positive semi-definite, or set analysis.rigid_modes"
+            f"eigenvalues {bad[:5]} are zero or negative but K has no null vector there (rigid-body tolerance "
+            f"{rigid_tol:g} x {scale:.3e}): K is not positive semi-definite, or set analysis.rigid_modes"
         )
     phi = _normalise(vec, M)
-    omega = np.sqrt(lam[r:])
-    return ModalBasis(omega=omega, phi=phi[:, r:], rigid=phi[:, :r], rigid_eigenvalues=lam[:r],
+    omega = np.sqrt(lam[ela])
+    return ModalBasis(omega=omega, phi=phi[:, ela], rigid=phi[:, rig], rigid_eigenvalues=lam[rig],
                       degenerate_groups=degenerate_groups(omega, degeneracy_tol),
                       complete=complete, solver=solver)
 
@@ -174,27 +188,30 @@ def modal_analysis(
     if K.shape != (n, n) or M.shape != (n, n):
         raise ValueError(f"K {K.shape} and M {M.shape} must be square and of the same size")
     scale = lambda_scale(K, M)
+    n_rb = None  # rigid motions K does not resist, when the dof geometry gives them
+    if rigid_candidates is not None and rigid_modes is None:
+        n_rb = rigid_field_count(K, rigid_span(rigid_candidates))
     if n <= dense_limit and eigensolver is None:
-        Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
-        Md = M.toarray() if sp.issparse(M) else np.asarray(M)
-        try:
-            lam, vec = sla.eigh(Kd, Md)
-        except np.linalg.LinAlgError as exc:
-            raise NumericalError(f"dense eigen-solve failed: {exc} (is M positive definite?)") from exc
+        lam, vec, massless = dense_modes(K, M, scale, rigid_tolerance)
         if counters is not None:
             counters.factorizations += 1
-        return _split(lam, vec, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, True, "dense")
+        solver = "dense" if not massless else f"dense, (M, K - sigma M): {massless} massless directions dropped"
+        if massless and progress:
+            progress(f"eigen-solve: M is singular: {massless} directions without mass (infinite eigenvalues) dropped")
+        basis = _split(lam, vec, K, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, True, solver, n_rb)
+        basis.massless = massless
+        return basis
 
     need = max(int(n_modes or 1), 1)
     if eigensolver is not None:
-        return _adapter_modes(eigensolver, M, need, _first_size(need, first_batch, rigid_modes, max_modes), scale,
-                              rigid_tolerance, rigid_modes, degeneracy_tolerance, min_omega, enough, max_modes,
+        return _adapter_modes(eigensolver, K, M, n_rb, need, _first_size(need, first_batch, rigid_modes, max_modes),
+                              scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, min_omega, enough, max_modes,
                               progress)
     # a small negative shift: K - sigma M is regular even with rigid-body modes
     sigma = -1e-10 * scale if scale > 0 else -1.0
     R = None  # rigid modes, when the dof geometry gives them: every Lanczos run then projects them out
     if rigid_candidates is not None and rigid_modes is None:
-        R = rigid_modes_from(K, M, rigid_candidates, scale, rigid_tolerance)
+        R = rigid_modes_from(K, M, rigid_candidates, scale, rigid_tolerance, n_rb)
     # on the union pattern of K and M, shared with them: no copy of the indices, no sparse sum kept
     fac = ShiftedFactorizer(K, M, counters=counters, backend=backend).factorizer(sigma, "K - sigma M (eigen-solve)")
     k = _first_size(need, first_batch, rigid_modes if R is None else 0, max_modes)  # R known: no room for it
@@ -261,7 +278,7 @@ def _first_size(need: int, first_batch: int | None, rigid_modes: int | None, max
     return elastic + (_RIGID_ROOM if rigid_modes is None else int(rigid_modes))
 
 
-def _adapter_modes(eigensolver, M, need: int, k: int, scale: float, rigid_tolerance: float,
+def _adapter_modes(eigensolver, K, M, n_rb: int | None, need: int, k: int, scale: float, rigid_tolerance: float,
                    rigid_modes: int | None, degeneracy_tolerance: float, min_omega: float | None, enough,
                    max_modes: int, progress) -> ModalBasis:
     """The adapter's own eigen-solver, ``k`` modes first: it cannot project found modes out, so a
@@ -272,8 +289,8 @@ def _adapter_modes(eigensolver, M, need: int, k: int, scale: float, rigid_tolera
         if progress:
             progress(f"eigen-solve: {k} modes of a {n}-dof model")
         lam, vec = eigensolver(k, shift=0.0)
-        basis = _split(np.asarray(lam, dtype=float), vec, M, scale, rigid_tolerance, rigid_modes,
-                       degeneracy_tolerance, False, "adapter")
+        basis = _split(np.asarray(lam, dtype=float), vec, K, M, scale, rigid_tolerance, rigid_modes,
+                       degeneracy_tolerance, False, "adapter", n_rb)
         if _satisfied(basis, need, min_omega, enough) or k >= min(max_modes, n - 2):
             return basis
         k = min(max(2 * k, k + 8), max_modes, n - 2)
@@ -286,9 +303,15 @@ def _first_batch(K, M, sigma: float, fac, k: int, R: np.ndarray | None, calls: l
     n = K.shape[0]
     if R is not None:
         lam, vec = shift_invert_modes(K, M, sigma, fac, k, R, calls)
+        mech = rigid_indices(lam, vec, K, scale, rigid_tolerance) if rigid_modes is None else np.zeros(0, int)
+        if len(mech):  # mechanisms that are no rigid motion of the whole (a loose part, a hinge)
+            ela = np.setdiff1d(np.arange(len(lam)), mech)
+            R = np.column_stack([R, _normalise(vec[:, mech], M)])
+            found = np.concatenate([np.zeros(R.shape[1] - len(mech)), lam[mech]])
+            return _deflated_basis(lam[ela], vec[:, ela], M, R, found, degeneracy_tolerance, solver)
         return _deflated_basis(lam, vec, M, R, np.zeros(R.shape[1]), degeneracy_tolerance, solver)
     lam, vec = shift_invert_modes(K, M, sigma, fac, k, None, calls)
-    basis = _split(lam, vec, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, False, solver)
+    basis = _split(lam, vec, K, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, False, solver)
     if basis.rigid.shape[1] and basis.n_elastic:
         # The rigid modes sit at 1/|sigma| in the shift-inverted spectrum and swamp the elastic ones
         # (errors ~1e-4 on small models): redo the elastic modes with the rigid ones projected out,
@@ -307,45 +330,6 @@ def _deflated_basis(lam, vec, M, R, rigid_eigenvalues, degeneracy_tolerance, sol
     return ModalBasis(omega=omega, phi=_normalise(vec, M), rigid=R, rigid_eigenvalues=rigid_eigenvalues,
                       degenerate_groups=degenerate_groups(omega, degeneracy_tolerance), complete=False,
                       solver=solver)
-
-
-def rigid_body_fields(X: np.ndarray, D: np.ndarray) -> np.ndarray:
-    """The six rigid motions (n, 6) sampled on dofs with coordinates X (n, 3) and direction codes D (n,).
-
-    Translations along x, y, z, then rotations about axes through the
-    centroid (``e_a x (x - c)`` on translational dofs, 1 on the rotational dof
-    of axis a).
-    """
-    X = np.asarray(X, dtype=float)
-    D = np.asarray(D, dtype=int)
-    n = len(D)
-    c = X[D < 3].mean(axis=0) if np.any(D < 3) else np.zeros(3)
-    Y = X - c
-    out = np.zeros((n, 6))
-    for a in range(3):
-        out[D == a, a] = 1.0
-        e = np.zeros(3)
-        e[a] = 1.0
-        rot = np.cross(e, Y)  # (n, 3) displacement of each node
-        t = D < 3
-        out[t, 3 + a] = rot[np.nonzero(t)[0], D[t]]
-        out[D == 3 + a, 3 + a] = 1.0
-    return out
-
-
-def rigid_modes_from(K: sp.spmatrix, M: sp.spmatrix, candidates: np.ndarray, scale: float,
-                     rigid_tolerance: float) -> np.ndarray:
-    """The M-orthonormal zero-energy motions within span(candidates): ``R`` (n, r), r = 0 when clamped."""
-    Q, rr = np.linalg.qr(candidates)
-    keep = np.abs(np.diag(rr)) > 1e-12 * np.abs(np.diag(rr)).max()
-    Q = Q[:, keep]
-    if Q.shape[1] == 0:
-        return np.zeros((K.shape[0], 0))
-    Kr = Q.T @ (K @ Q)
-    Mr = Q.T @ (M @ Q)
-    lam, v = sla.eigh((Kr + Kr.T) / 2, (Mr + Mr.T) / 2)
-    zero = np.abs(lam) <= rigid_tolerance * scale
-    return Q @ v[:, zero]  # M-orthonormal since v is Mr-orthonormal
 
 
 def modes_near(K: sp.spmatrix, M: sp.spmatrix, sigma: float, solve: Callable[[np.ndarray], np.ndarray],

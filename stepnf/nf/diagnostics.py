@@ -10,6 +10,7 @@ quadratic force the modal sums can see.
 from __future__ import annotations
 
 import contextlib
+import math
 from typing import Sequence
 
 import numpy as np
@@ -199,8 +200,10 @@ def inverse_mass_norm2(M: sp.spmatrix, v: np.ndarray, rtol: float = INVERSE_MASS
     for _ in range(maxiter):
         Mp = M @ p
         curv = float(p @ Mp)
-        if curv <= 0:
-            raise NumericalError("the mass matrix is not positive definite (CG met p^T M p <= 0)")
+        if curv <= 1e3 * np.finfo(float).eps * float(p @ (d * p)):
+            if curv >= -1e3 * np.finfo(float).eps * float(p @ (d * p)):
+                return math.inf  # p is (to round-off) massless: v has a part M does not see (a singular M)
+            raise NumericalError("the mass matrix is not positive definite, nor semi-definite (CG met p^T M p < 0)")
         alpha = gamma / curv
         step = alpha * gamma
         total += step
@@ -311,7 +314,8 @@ def check_conditioning(r: float, *, flag_at: float = 1e-6, refuse_at: float = 1e
 
     err = np.finfo(float).eps / max(r, 1e-300)
     text = (f"the lowest elastic eigenvalue is {r:.1e} times the largest: double precision resolves it only "
-            f"to about {min(err, 1.0):.0e} (relative), and every frequency, mode and T inherits that error. A very "
+            f"to about {min(err, 1.0):.0e} (relative), and the frequencies inherit that error (each T has its "
+            "own bound, larger where its terms cancel: T_error, and a t_roundoff flag above the tolerance). A very "
             "thin structure meshed with solid elements does this (stiffness ratio ~ (a/h)^4); use a shell "
             "model, or fewer through-thickness elements")
     if err > refuse_at:

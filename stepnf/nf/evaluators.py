@@ -60,8 +60,20 @@ from stepnf.flags import new_flag
 from stepnf.linalg.deflation import DeflatedSolver
 from stepnf.linalg.factorization import Factorization, PseudoInverse, factorize
 from stepnf.nf.linearised import Spectrum, qm_T_error
+from stepnf.nf.roundoff import cancellation, dnf_roundoff, qm_roundoff
 from stepnf.linalg.shifted import ShiftedFactorizer, Slot
 from stepnf import methods
+
+
+@dataclass(frozen=True)
+class Rounding:
+    """What :func:`dnf` needs to bound T's rounding (:mod:`stepnf.nf.roundoff`): the STEP amplitude ``q``
+    (modal), ``H(phi_p, phi_p, phi_p)`` (n,) or None, and the solver's printed force digits (None: full
+    double precision)."""
+
+    q: float
+    Hv: np.ndarray | None = None
+    digits: int | None = None
 
 
 @dataclass(frozen=True)
@@ -249,14 +261,21 @@ def dnf_shifted_rhs(Gv: np.ndarray, ctx: FullOrderContext) -> np.ndarray:
 
 def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
         *, dGv: np.ndarray | None = None, dh: float = 0.0, y: np.ndarray | None = None,
-        z: np.ndarray | None = None) -> tuple[MethodResult, np.ndarray]:
+        z: np.ndarray | None = None, rounding: Rounding | None = None) -> tuple[MethodResult, np.ndarray]:
     """Direct normal form, full order (paper Eq. 9-10): two linear solves.
 
     Returns the result and ``y = K^+ Gv`` (reused by full-order SMD); ``y`` and ``z`` (the solution
     of ``(K - 4 w^2 M) z = b``, :func:`dnf_shifted_rhs`) given are not solved again. The
-    result's ``fields`` hold ``a_bar`` and ``w2_b_bar = w^2 b_bar`` (module docstring). With
-    ``dGv``, ``dh`` (differences at the STEP check amplitude) ``T_error`` is
-    the first-order change of T: ``dA = 4 dGv^T a_bar``, ``dB = 4 dGv^T b_bar``.
+    result's ``fields`` hold ``a_bar`` and ``w2_b_bar = w^2 b_bar`` (module docstring).
+    ``B = 2 b_bar^T Gv = (z - y)^T Gv / w^2`` is computed as ``4 y^T M z`` (equal by the resolvent
+    identity ``K^+ - (K - 4 w^2 M)^-1 = -4 w^2 K^+ M (K - 4 w^2 M)^-1`` on the elastic modes), which
+    does not cancel when ``z`` is close to ``y`` (a slender structure's membrane modes far above ``2 w``).
+    With ``dGv``, ``dh`` (differences at the STEP check amplitude) ``T_error`` is
+    the first-order change of T: ``dA = 4 dGv^T a_bar``, ``dB = 4 dGv^T b_bar`` (also in
+    ``extra["T_change"]``); with ``rounding`` (the STEP amplitude and the solver's force digits),
+    ``extra["roundoff"]`` bounds the error the forces' rounding and the solves leave in T through the
+    cancellation of its terms (:mod:`stepnf.nf.roundoff`), ``extra["cancellation"]`` measures that
+    cancellation, and ``T_error`` is the larger of the two.
     """
     w2 = omega_p ** 2
     if y is None:
@@ -277,22 +296,28 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
     a_bar = -0.5 * (y + z)
     b_bar = (z - y) / (2 * w2)
     A = 2 * float(a_bar @ Gv)
-    B = 2 * float(b_bar @ Gv)
+    B = 4 * float(y @ (ctx.M @ z))  # = 2 b_bar^T Gv, without its cancellation (docstring)
     T = (3 * (A + h) + w2 * B) / (8 * w2)
     res = MethodResult(methods.DNF, T, (0.0, 0.0, 0.0, A + h, w2 * B, 0.0), [], order=methods.FULL)
-    res.extra = {"A": A, "B": B, "h": h}
+    res.extra = {"A": A, "B": B, "h": h, "cancellation": cancellation(A, h, w2 * B)}
     if ctx.keep_fields:
         res.fields = {"a_bar": a_bar, "w2_b_bar": 0.5 * (z - y)}  # w2_b_bar = w^2 b_bar
+    res.extra["T_change"] = None  # no check amplitude: no change measured
     if dGv is not None:
         dA, dB = 4 * float(dGv @ a_bar), 4 * float(dGv @ b_bar)
         dT = (3 * (dA + dh) + w2 * dB) / (8 * w2)
         res.T_error = abs(dT) / abs(T) if T != 0 else (0.0 if dT == 0 else np.inf)
+        res.extra["T_change"] = res.T_error
+    if rounding is not None:
+        rel, parts = dnf_roundoff(phi, rounding.q, omega_p, T, Gv, rounding.Hv, y, z, ctx.K, ctx.M, rounding.digits)
+        res.extra.update(roundoff=rel, **{f"roundoff_{k}": v for k, v in parts.items()})
+        res.T_error = rel if res.T_error is None else max(res.T_error, rel)
     return res, y
 
 
 def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
              ctx: FullOrderContext, y: np.ndarray | None = None, *, dGv: np.ndarray | None = None,
-             dh: float = 0.0, spectrum: Spectrum | None = None) -> MethodResult:
+             dh: float = 0.0, spectrum: Spectrum | None = None, rounding: Rounding | None = None) -> MethodResult:
     """Static modal derivative quadratic manifold, full order: ``theta = -2 K^+ Gv`` (one solve, or none given y).
 
     With ``dGv``, ``dh`` (differences at the STEP check amplitude, as for
@@ -305,6 +330,18 @@ def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
     res, forms = _qm_full(methods.SMD, phi, omega_p, Gv, h, theta, ctx)
     if dGv is not None:
         res.T_error = qm_T_error(res, forms, phi, omega_p, theta, 0.0, ctx.Kpinv.R, dGv, dh, spectrum)
+    return with_qm_roundoff(res, phi, omega_p, Gv, theta, ctx, rounding)
+
+
+def with_qm_roundoff(res: MethodResult, phi: np.ndarray, omega_p: float, Gv: np.ndarray, theta: np.ndarray | None,
+                     ctx: FullOrderContext, rounding: Rounding | None) -> MethodResult:
+    """``res`` with ``extra["roundoff"]`` (:func:`~stepnf.nf.roundoff.qm_roundoff`), ``extra["T_change"]``
+    (the two-amplitude change) and ``T_error`` the larger of the two; unchanged without ``rounding``."""
+    if rounding is None or theta is None or not np.isfinite(res.T):
+        return res
+    rel = qm_roundoff(phi, rounding.q, omega_p, res.T, Gv, rounding.Hv, theta, ctx.K, rounding.digits)
+    res.extra["T_change"], res.extra["roundoff"] = res.T_error, rel
+    res.T_error = rel if res.T_error is None else max(res.T_error, rel)
     return res
 
 
@@ -313,7 +350,8 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
             tol: Tolerances = Tolerances(), floor: np.ndarray | float | None = None,
             exclude: Sequence[int] | None = None, twin_index: Sequence[int] | None = None,
             labels: Sequence[Any] | None = None, dGv: np.ndarray | None = None, dh: float = 0.0,
-            spectrum: Spectrum | None = None, theta: np.ndarray | None = None) -> MethodResult:
+            spectrum: Spectrum | None = None, theta: np.ndarray | None = None,
+            rounding: Rounding | None = None) -> MethodResult:
     """Modal-derivative quadratic manifold, full order.
 
     ``theta`` solves the bordered system ``[[K - w^2 M, M D], [D^T M, 0]]`` with
@@ -334,7 +372,7 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
                                          theta)
     if dGv is not None and theta is not None:
         res.T_error = qm_T_error(res, forms, phi, omega_p, theta, w2, D, dGv, dh, spectrum)
-    return res
+    return with_qm_roundoff(res, phi, omega_p, Gv, theta, ctx, rounding)
 
 
 def md_twin_flag(p: int, phi: np.ndarray, Gv: np.ndarray, D: np.ndarray, g: np.ndarray | None, tol: Tolerances,

@@ -6,13 +6,15 @@ import numpy as np
 from stepnf.nf.coefficient import MethodResult
 from stepnf.nf.diagnostics import captured_share, floor_scale, merge_flags, one_two_flags, t_error, truncation_flags
 from stepnf.flags import new_flag
-from stepnf.nf.evaluators import (Tolerances, dnf, dnf_uses_factorisation, md_full, resonance_flags, retained_set,
+from stepnf.nf.evaluators import (Rounding, Tolerances, dnf, dnf_uses_factorisation, md_full, resonance_flags, retained_set,
                                    smd_full)
 from stepnf.methods import DNF, MD, MD_FULL, MODAL_EVALUATORS, SMD_FULL, method
 from stepnf.nf.linearised import Spectrum
 from stepnf.pipeline.context import full_order_context
 from stepnf.pipeline.master import MasterData
 from stepnf.pipeline.state import StageView
+from stepnf.pipeline.slender_dnf import raised_dnf
+from stepnf.step.procedure import MasterStep
 
 
 def modal_method(name: str, p: int, omega: np.ndarray, g: np.ndarray, h: float, S: np.ndarray, tol: Tolerances,
@@ -42,7 +44,15 @@ def run_dnf(state: StageView, d: MasterData) -> MethodResult:
     (given there already: not solved again)."""
     p, st, omega = d.p, d.st, state.omega
     dG, dh = check_differences(st)
-    r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh, y=d.y, z=d.z)
+    r, d.y = dnf(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), dGv=dG, dh=dh, y=d.y, z=d.z,
+                 rounding=rounding_of(state, st))
+
+    def rerun(st2: MasterStep) -> tuple[MethodResult, np.ndarray]:  # DNF from another amplitude: fresh solves
+        dG2, dh2 = check_differences(st2)
+        return dnf(p, d.phi, omega[p], st2.Gv, st2.h, full_order_context(state), dGv=dG2, dh=dh2,
+                   rounding=rounding_of(state, st2))
+
+    r = raised_dnf(state, d, r, rerun)
     r.flags = merge_flags(r.flags, one_two_flags(p, omega[p], st, state.basis, full_order_context(state),
                                                  floor_scale(st, state.M, state.tol), state.tol, state.adapter,
                                                  state.counters))
@@ -81,7 +91,15 @@ def run_smd_full(state: StageView, d: MasterData) -> MethodResult:
     p, st, omega = d.p, d.st, state.omega
     dG, dh = check_differences(st)
     return smd_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), y=d.y, dGv=dG, dh=dh,
-                    spectrum=computed_spectrum(state) if dG is not None else None)
+                    spectrum=computed_spectrum(state) if dG is not None else None, rounding=rounding_of(state, st))
+
+
+def rounding_of(state: StageView, st: MasterStep) -> Rounding | None:
+    """What the full-order evaluators need to bound T's rounding (:mod:`stepnf.nf.roundoff`) for STEP ``st``;
+    None for STEP from tangent stiffnesses (``[analysis.step] method = "tangent"``: the bound models forces)."""
+    if state.policy.method == "tangent":
+        return None
+    return Rounding(st.q, st.Hv, getattr(state.adapter, "force_digits", None))
 
 
 def run_md_full(state: StageView, d: MasterData) -> MethodResult:
@@ -95,7 +113,8 @@ def run_md_full(state: StageView, d: MasterData) -> MethodResult:
     dG, dh = check_differences(st)
     r = md_full(p, d.phi, omega[p], st.Gv, st.h, full_order_context(state), tw, g=d.g_all, tol=state.tol,
                 floor=d.floor, exclude=[nr + p] + [nr + t for t in twins], twin_index=twins, labels=state.labels,
-                dGv=dG, dh=dh, spectrum=computed_spectrum(state) if dG is not None else None, theta=d.theta)
+                dGv=dG, dh=dh, spectrum=computed_spectrum(state) if dG is not None else None, theta=d.theta,
+                rounding=rounding_of(state, st))
     r.flags += resonance_flags(MD, p, omega, d.g_all, [s for s in range(state.m) if s not in twins], 1.0,
                                state.tol, state.labels, d.floor)
     return r
@@ -112,10 +131,19 @@ def run_method(state: StageView, d: MasterData, name: str, ev: str) -> MethodRes
     if ev in MODAL_EVALUATORS:
         r.retained_modes = len(retained_set(d.p, state.n_ret, state.m))
     tolerance = state.policy.tolerance
-    if r.T_error is not None and r.T_error > tolerance:
-        r.flags.append(new_flag("step_accuracy", value=float(r.T_error),
-                                message=f"T changes by {r.T_error:.2e} (relative) between the two "
+    extra = r.extra if isinstance(r.extra, dict) else {}
+    change = extra.get("T_change", r.T_error)  # DNF keeps the change apart from its rounding bound
+    if change is not None and change > tolerance:
+        r.flags.append(new_flag("step_accuracy", value=float(change),
+                                message=f"T changes by {change:.2e} (relative) between the two "
                                         f"STEP amplitudes; tolerance {tolerance:.1e}"))
+    roundoff = extra.get("roundoff")
+    if roundoff is not None and roundoff > tolerance:
+        r.flags.append(new_flag("t_roundoff", value=float(roundoff),
+                                message=f"rounding of the forces and the solves leaves T an error of up to "
+                                        f"{roundoff:.2e} (relative): its terms cancel "
+                                        f"{extra.get('cancellation', float('nan')):.2g}-fold; tolerance "
+                                        f"{tolerance:.1e}"))
     if state.gscale is not None:
         r.gamma = state.gscale.gamma(r.T, d.w_max)
     return r

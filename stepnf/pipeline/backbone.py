@@ -37,8 +37,9 @@ from stepnf.dpim.backbone_report import WMax, backbone_report, transverse_operat
 from stepnf.dpim.parametrisation import DPIM, DPIMResult, DPIMTolerances, ModeSpectrum
 from stepnf.dpim.nonlinear_terms import planned_evaluations
 from stepnf.dpim.solves import Solvers
-from stepnf.errors import NoSingleModeManifold, SceneError
-from stepnf.flags import DIVERGES_REASON, STEP_UNUSABLE, backbone_invalidating, kind_of, new_flag
+from stepnf.errors import AdapterError, NoSingleModeManifold, NumericalError, SceneError
+from stepnf.flags import (BACKBONE_FAILED_REASON, DIVERGES_REASON, STEP_UNUSABLE, backbone_invalidating, kind_of,
+                          new_flag)
 from stepnf.nf.gamma import gamma_scale
 from stepnf.linalg.shifted import ShiftedFactorizer, Slot
 from stepnf.methods import DNF
@@ -57,6 +58,12 @@ KEEP_FACTORISATIONS_UP_TO = 5000
 #: the eigen-solver's; larger ones one. Measured on the hex27 cap: a factorisation holds ~6 KiB per dof and
 #: K, M and the vectors ~8 KiB per dof, so three factorisations at 400k dofs take ~10 GB of this 24 GB machine.
 TWO_SLOTS_UP_TO = 400_000
+#: What ends the DPIM of one master without ending the run (:func:`failed_backbone`): a numerical error (a
+#: master that is not an eigenpair, a singular or refused solve, NaN), LAPACK's, or forces the adapter returned
+#: unusable (NaN at the probe fields): a rerun would meet them again. Not a solver that failed to run
+#: (:class:`~stepnf.errors.SolverRunError`: a crash, a time-out, possibly transient), which still ends the run
+#: with its checkpoint kept, so that a rerun resumes; nor an interruption, a memory error or a bug.
+BACKBONE_FAILURES = (NumericalError, ArithmeticError, np.linalg.LinAlgError, AdapterError)
 
 
 def second_slot(state: StageView) -> Slot:
@@ -197,6 +204,10 @@ def backbone_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: Ste
                     if refused is not None:
                         out[p] = refused
                     continue
+                except BACKBONE_FAILURES as exc:  # the T table and the results are kept; the run exits 3
+                    state.progress.message(f"backbone of master mode {p} failed: {exc}")
+                    out[p] = failed_backbone(spec, probe, exc)
+                    continue
                 fallback = step_amplitude(state.phi[:, p], state.policy, length)
                 block = backbone_report(res, spec, wmax, probe=probe, fallback=fallback)
                 block = force_accuracy(block, records.get(p), state.policy.tolerance)
@@ -266,6 +277,21 @@ def refused_backbone(record, spec, probe: float, exc: NoSingleModeManifold) -> B
              "valid_up_to": 0.0, "valid_reason": reason, "grid": False,
              "tolerance": spec.tolerance, "probe": json_float(probe), "flags": [flag], "counts": {}}
     return BackboneOutput(None, block, method_flags)
+
+
+def failed_backbone(spec, probe: float, exc: BaseException) -> BackboneOutput:
+    """The DPIM of a master failed (a numerical error, forces the adapter returned unusable:
+    :data:`BACKBONE_FAILURES`): a backbone block with ``failed`` true, ``failed_reason`` the error's message,
+    a ``backbone_failed`` flag saying it, no amplitudes and no validity range. The master's T and every other master are kept; the
+    command exits 3 (:meth:`stepnf.io.results.RunResult.failed_backbones`)."""
+    reason = " ".join(str(exc).split()) or type(exc).__name__  # one line (an adapter's error may quote a log)
+    flag = new_flag("backbone_failed", mode=None,
+                    message=f"the backbone was not computed: {reason} (T and the rest of the run are not affected)")
+    block = {"order": spec.order, "amplitude": [], "omega": [], "omega_ratio": [], "w_max_over_h": None,
+             "valid_up_to": 0.0, "valid_reason": BACKBONE_FAILED_REASON, "grid": False,
+             "tolerance": spec.tolerance, "probe": json_float(probe), "flags": [flag], "counts": {},
+             "failed": True, "failed_reason": reason}
+    return BackboneOutput(None, block, ())
 
 
 def kept_backbone(p: int, res: DPIMResult, block: dict) -> BackboneOutput:

@@ -32,7 +32,11 @@ def open_model(scene: Scene, progress: Progress | None = None) -> Any:
     progress = progress or Progress(enabled=False)
     what = "building" if is_modal_model(scene) else "setting up"
     with progress.stage("model", f"{what} the {scene.solver} model"):
-        return build_model(scene)
+        model = build_model(scene)
+    line = model.summary() if callable(getattr(model, "summary", None)) else ""  # mesh, element order, dofs
+    if line:
+        progress.message(line)
+    return model
 
 
 def model_stage(ctx: RunContext, adapter: Any, *, survey: bool = False) -> RunModel:

@@ -6,6 +6,7 @@ from typing import Any, Sequence
 from stepnf.errors import NumericalError, SceneError
 from stepnf.io.results import label_text
 from stepnf.linalg.modal_analysis import ModalBasis
+from stepnf.linalg.null_space import moving_dofs
 from stepnf.methods import evaluators
 from stepnf.scene.parse import Scene, parse_label
 
@@ -85,12 +86,18 @@ def check_elastic_modes(scene: Scene, basis: ModalBasis) -> None:
 
 
 def check_mechanism(scene: Scene, adapter: Any, basis: ModalBasis) -> None:
-    """Boundary conditions that still leave rigid-body modes are refused (exit 2), naming their count,
-    unless ``analysis.rigid_modes`` accepts them: conditions meant to hold a structure leave none."""
+    """Boundary conditions that still leave rigid-body modes (null vectors of K) are refused (exit 2), naming
+    their count and the dofs they move, unless ``analysis.rigid_modes`` accepts them: conditions meant to
+    hold a structure leave none."""
     from stepnf.plugin.boundary import check_mechanism as why
 
     if scene.rigid_modes is not None or adapter.free_dof_map() is None:
         return
-    reason = why(int(basis.rigid.shape[1]), True)
+    r = int(basis.rigid.shape[1])
+    reason = why(r, True)
     if reason is not None:
-        raise SceneError(scene.file, "model.boundary", reason)
+        X, D = adapter.dof_coordinates(), adapter.dof_directions()
+        moves = "; ".join(f"mode {j}: {moving_dofs(basis.rigid[:, j], X, D)}" for j in range(min(r, 3)))
+        # the conditions are the scene's [[model.boundary]], else a deck's own *BOUNDARY
+        key = "model.deck" if scene.model.get("deck") and not scene.model.get("boundary") else "model.boundary"
+        raise SceneError(scene.file, key, f"{reason} ({moves}{'; ...' if r > 3 else ''})")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from stepnf.flags import new_flag
-from stepnf.nf.gamma import NO_AMPLITUDE
+from stepnf.nf.gamma import NO_AMPLITUDE, share_flag, transverse_share
 from stepnf.io.results import ModeResult, RunResult, write_hdf5
 from stepnf.pipeline.outputs import (AdapterFacts, Backbones, Evaluations, RunContext, RunModel, RunModes,
                                      StepTerms)
@@ -77,6 +77,22 @@ def with_backbones(records: list[ModeResult], backbones: Backbones) -> list[Mode
     return records
 
 
+def with_transverse_shares(records: list[ModeResult], model: RunModel, modes: RunModes, evals: Evaluations,
+                           transverse) -> list[ModeResult]:
+    """With ``[analysis] transverse`` and a Gamma: each master's ``transverse_share`` (its kinetic energy in that
+    direction, :func:`stepnf.nf.gamma.transverse_share`) and, below :data:`~stepnf.nf.gamma.GAMMA_SHARE_MIN`, a
+    ``gamma_not_transverse`` flag on every method that has a Gamma (the table shows it n/a, the number is kept)."""
+    if transverse is None or evals.gscale is None or model.dirs is None:
+        return records
+    for rec in records:
+        rec.transverse_share = transverse_share(modes.phi[:, rec.index], model.M, model.X, model.dirs, transverse)
+        flag = share_flag(rec.transverse_share)
+        for r in rec.methods.values() if flag is not None else ():
+            if r.gamma is not None:
+                r.flags.append(dict(flag))
+    return records
+
+
 def spectrum_summary(model: RunModel, modes: RunModes, scales: Any) -> dict[str, Any]:
     """The ``spectrum`` block: elastic frequencies (rad/s), labels, rigid modes, solvers used."""
     basis, omega = modes.basis, modes.omega
@@ -109,7 +125,7 @@ def results_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: Step
                   backbones: Backbones, facts: AdapterFacts) -> RunResult:
     """The :class:`RunResult` of a solver adapter's run, from every stage's output (module docstring),
     written when ``ctx.writing`` (:func:`write_results`)."""
-    records = with_backbones(evals.modes, backbones)
+    records = with_transverse_shares(with_backbones(evals.modes, backbones), model, modes, evals, ctx.scene.transverse)
     flags = list(modes.flags) + list(terms.flags) + gamma_flags(records, evals.no_gamma)
     arrays = run_arrays(modes, terms, evals, backbones)
     arrays.update(field_arrays(model, modes, facts))

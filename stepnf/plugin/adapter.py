@@ -221,6 +221,12 @@ class SolverAdapter(FromScene):
         """A :class:`stepnf.plugin.shell_scales.ShellScales` for shell models (kappa, w_bar, Gamma), or ``None``."""
         return None
 
+    def summary(self) -> str:
+        """One line about the model for the run's progress report, printed once it is built (e.g. ``mesh:
+        800 hex8 cells, order 2 elements (Q2), 73 000 dofs``): what the user cannot see in the scene, such as
+        an element order promoted or the dof count; '' (the default): nothing to say."""
+        return ""
+
     def describe(self) -> dict[str, Any]:
         """Facts about the model worth storing with the results (JSON-serialisable)."""
         return {"adapter": type(self).__name__, "n_dofs": int(self.n_dofs)}

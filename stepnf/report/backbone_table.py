@@ -58,6 +58,8 @@ def backbone_lines(res: RunResult) -> list[str]:
 def limit_text(b: dict[str, Any]) -> str:
     """What the block says of its validity limit (``valid_up_to``, ``valid_reason``)."""
     v, orders = b.get("valid_up_to"), f"orders {b['order'] - 2} and {b['order']}"
+    if b.get("failed"):
+        return "FAILED, not computed (flag below; the command exits 3)"
     if b.get("valid_reason") == "forces inaccurate":
         return "no validity range: the forces at the probe amplitude are not accurate (flag below)"
     if b.get("valid_reason") in NO_VALIDITY_REASONS:

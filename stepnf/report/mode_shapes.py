@@ -8,6 +8,7 @@ import numpy as np
 
 from stepnf.report.figures import pyplot, save_figure
 from stepnf.io.results import RunResult, label_text
+from stepnf.flags import gamma_unusable, t_unusable
 from stepnf.methods import DNF
 
 
@@ -63,7 +64,8 @@ def mode_shapes_figure(result: RunResult, plt=None):
         ax.set_aspect("equal")
         ax.set_axis_off()
         dnf = mode.methods.get(DNF)
-        g = f"\nGamma_DNF = {dnf.gamma:+.3f}" if dnf is not None and dnf.gamma is not None else ""
+        shown = dnf is not None and dnf.gamma is not None and not t_unusable(dnf) and not gamma_unusable(dnf)
+        g = f"\nGamma_DNF = {dnf.gamma:+.4g}" if shown else ""
         wb = f", w_bar = {mode.omega_bar:.3f}" if mode.omega_bar is not None else ""
         ax.set_title(f"mode {mode.index} {label_text(mode.label)}{wb}{g}", fontsize=10)
     for ax in axes.ravel()[k:]:

@@ -4,9 +4,13 @@ from __future__ import annotations
 import math
 
 from stepnf.report.backbone_table import backbone_lines
-from stepnf.flags import printed_under_table, t_unusable
+from stepnf.flags import gamma_unusable, na_hint, printed_under_table, t_unusable
 from stepnf.runtime.printable import printable
 from stepnf.io.results import RunResult, label_text
+
+
+#: Gamma's format: four significant digits, whatever its size (a cantilever's 1e-5 as well as a plate's 0.27)
+GAMMA_FORMAT = "{:+.4g}"
 
 
 def _num(x: float | None, fmt: str = "{:+.4e}") -> str:
@@ -23,7 +27,9 @@ def format_table(res: RunResult) -> str:
     A T the tool knows to be wrong (:func:`stepnf.flags.t_unusable`: infinite, a master without a
     single-mode manifold, a truncated modal sum, forces too inaccurate) is shown as ``n/a``, with its
     Gamma and behaviour, and the reason is printed under the table; the JSON document and the HDF5
-    file keep the number. Which flags get a line of their own: :mod:`stepnf.flags`.
+    file keep the number. A Gamma alone is n/a when a flag says so (:func:`stepnf.flags.gamma_unusable`:
+    a mode the transverse direction barely carries), with a ``Gamma n/a`` line; Gamma is printed with
+    four significant digits. Which flags get a line of their own: :mod:`stepnf.flags`.
     """
     lines = []
     head = res.model.get("adapter") or res.model.get("model") or ""
@@ -33,7 +39,7 @@ def format_table(res: RunResult) -> str:
     cols = ["mode", "label", "omega", "w_bar", "rho", "method", "T", "Gamma" if has_gamma else None,
             "behaviour", "flags"]
     cols = [c for c in cols if c]
-    rows, unusable = [], []
+    rows, unusable, no_gamma = [], [], []
     for m in res.modes:
         first = True
         for name, r in m.methods.items():
@@ -48,7 +54,10 @@ def format_table(res: RunResult) -> str:
                 unusable.append((m.index, name, verdict))
                 row += [name, "n/a"] + (["n/a"] if has_gamma else []) + ["n/a", flags or "-"]
             else:
-                row += [name, _num(r.T)] + ([_num(r.gamma, "{:+.4f}")] if has_gamma else [])
+                gamma_na = gamma_unusable(r) if r.gamma is not None else None
+                if gamma_na:
+                    no_gamma.append((m.index, name, gamma_na))
+                row += [name, _num(r.T)] + (["n/a" if gamma_na else _num(r.gamma, GAMMA_FORMAT)] if has_gamma else [])
                 row += [r.behaviour, flags or "-"]
             rows.append(row)
             first = False
@@ -68,6 +77,15 @@ def format_table(res: RunResult) -> str:
         grouped.setdefault((i, reason), []).append(name)
     for (i, reason), names in grouped.items():
         lines.append(f"n/a [{i} {', '.join(names)}]: {reason} (the JSON document and the HDF5 file keep the number)")
+    for kind in dict.fromkeys(kind for _, _, (kind, _) in unusable):  # once per kind of n/a
+        if na_hint(kind):
+            lines.append(f"hint: {na_hint(kind)}")
+    gamma_grouped: dict[tuple[int, str], list[str]] = {}
+    for i, name, reason in no_gamma:
+        gamma_grouped.setdefault((i, reason), []).append(name)
+    for (i, reason), names in gamma_grouped.items():
+        lines.append(f"Gamma n/a [{i} {', '.join(names)}]: {reason} (the JSON document and the HDF5 file keep "
+                     "the number)")
     for m in res.modes:
         for name, r in m.methods.items():
             for f in r.flags:

@@ -48,6 +48,11 @@ def memory_now() -> dict[str, float | None]:
             "rss_mb": None if rss is None else round(rss, 1)}
 
 
+def thousands(n: int) -> str:
+    """``73 000``: an integer with its thousands separated by spaces (for counts in progress lines)."""
+    return f"{int(n):,}".replace(",", " ")
+
+
 class Progress:
     """Prints ``[stepnf] stage ... (1.23 s)`` lines; silent when ``enabled`` is False.
 

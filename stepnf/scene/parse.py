@@ -16,7 +16,9 @@ Minimum schema (every later feature extends it without breaking it)::
 Optional ``[analysis]`` keys: ``qm_order`` ("full" | "modal": how md and smd
 are evaluated; default "full" for FE adapters, "modal" for modal models),
 ``tensors`` ("targeted" | "full": the full Muravyov-Rizzi STEP over the
-retained modes), ``rigid_modes`` ("auto" | int), ``rigid_tolerance``,
+retained modes), ``rigid_modes`` ("auto": the null vectors of K among the
+eigenvalues below ``rigid_tolerance`` x the largest, :mod:`stepnf.linalg.null_space`; or an int),
+``rigid_tolerance``,
 ``degeneracy_tolerance``, ``resonance_tolerance``, ``coupling_tolerance``,
 ``linear_solver`` ("auto" | "dense" | "superlu" | "mumps"), ``deflation``
 (true: shifted solves below the computed spectrum reuse the eigen-solver's

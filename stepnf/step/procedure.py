@@ -115,10 +115,10 @@ def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: fl
 
 
 def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.ndarray,
-                   policy: StepPolicy, modes: list[int] | None = None) -> list[MasterStep]:
+                   policy: StepPolicy, modes: list[int] | None = None, plan: str = "targeted") -> list[MasterStep]:
     """:func:`targeted_step` for several master modes (columns of ``Phi``) in ONE batch of fields.
 
-    An external solver then runs once for the whole plan.
+    An external solver then runs once for the whole plan (``plan``: its name in the run's checkpoint).
     """
     k = Phi.shape[1]
     modes = list(range(k)) if modes is None else list(modes)
@@ -130,7 +130,7 @@ def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: n
         if policy.check:
             q2 = policy.check_ratio * qj
             fields += [q2 * phi, -q2 * phi]
-    F = forces(np.stack(fields), plan="targeted")
+    F = forces(np.stack(fields), plan=plan)
     out = []
     for j in range(k):
         phi, qj, p = Phi[:, j], float(q[j]), modes[j]

@@ -18,8 +18,8 @@ parametrisation with the same master coordinate and rate (``phi^T M x = q``,
 ``phi^T M v = q'``: two scalar equations, Newton), and the distance is the energy norm
 ``sqrt(dx^T K dx + dv^T M dv)`` over ``sqrt(x^T K x + v^T M v)`` (relative), the largest over the orbit.
 
-Progress (:class:`OrbitClock`, through ``progress``: stderr in ``stepnf verify``): before each orbit a line
-with the mode, the amplitude, ``orbit k of n``, the time elapsed and an estimate of the time left.
+Progress (:class:`stepnf.verify.clock.OrbitClock`, through ``progress``: stderr in ``stepnf verify``): before
+each orbit a line with the mode, the amplitude, ``orbit k of n``, the time elapsed and an estimate of the time left.
 """
 from __future__ import annotations
 
@@ -30,13 +30,16 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from stepnf.keys.backbone import AMPLITUDE_RANGE
-from stepnf.errors import NumericalError, SceneError
+from stepnf.errors import AdapterError, NumericalError, SceneError
+from stepnf.verify.clock import OrbitClock
 
 #: Largest model (dofs) checked by shooting; larger ones by time integration.
 SHOOTING_LIMIT = 300
 #: The most periods ``--periods`` may ask (3 by default): each period is many implicit steps of the full
 #: model at two step sizes, so this bounds a run's length rather than any accuracy.
 MAX_PERIODS = 1000
+#: ``--steps-per-period``: 8 steps is the coarsest a period's shape survives; 1e5 bounds a run's length.
+STEPS_RANGE = (8, 100_000)
 
 
 class Chart:
@@ -119,6 +122,7 @@ class Check:
     error_estimate: float | None = None  # bound on omega_check's error, relative (integration only)
     seconds: float = 0.0
     work: dict | None = None
+    max_displacement: float | None = None  # largest |x| at the orbit's start, at rest (W_max; length units)
 
     @property
     def difference(self) -> float:
@@ -128,19 +132,22 @@ class Check:
 
 def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float, *,
                 tangent: Callable | None = None, samples: int = 32, forces: Callable | None = None,
-                integrator: str = "auto", w_max: float | None = None) -> Check:
+                integrator: str = "auto", w_max: float | None = None, per_period: int | None = None) -> Check:
     """The brake orbit of amplitude ``A`` by shooting, from the parametrisation's guess.
 
     ``forces`` the batched internal forces (the implicit integrator sends its stages in one call);
     ``integrator`` as :class:`stepnf.verify.periodic.Shooting` (``"auto"``: implicit for a stiff model); ``w_max``
-    the model's highest frequency when known (:func:`stepnf.verify.periodic.highest_frequency`; else computed).
+    the model's highest frequency when known (:func:`stepnf.verify.periodic.highest_frequency`; else computed);
+    ``per_period`` the implicit integrator's steps per period (default
+    :data:`stepnf.verify.periodic.IMPLICIT_STEPS`).
     """
-    from stepnf.verify.periodic import Shooting
+    from stepnf.verify.periodic import IMPLICIT_STEPS, Shooting
 
     t0 = time.perf_counter()
     bb = res.backbone()
     rho = bb.rho_at(A)
-    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent, forces=forces, integrator=integrator, w_max=w_max)
+    sh = Shooting(M, K, f1, res.phi, res.omega, tangent=tangent, forces=forces, integrator=integrator, w_max=w_max,
+                  steps=per_period or IMPLICIT_STEPS)
     orb = sh.at_amplitude(A, guess=(res.displacement(0.0, rho), 2 * np.pi / bb.frequency(rho)))
     states = sh.samples(orb.x0, orb.period, samples)
     chart = Chart(res, K, M)
@@ -148,13 +155,19 @@ def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float
     rho = bb.rho_at(orb.amplitude)
     dist = max(chart.distance(y[:n], y[n:], rho) for y in states)
     return Check(A, float(bb.omega_at(orb.amplitude)[0]), orb.omega, orb.amplitude, dist, "shooting",
-                 None, time.perf_counter() - t0, {"newton_iterations": orb.newton_iterations, **sh.work})
+                 None, time.perf_counter() - t0, {"newton_iterations": orb.newton_iterations, **sh.work},
+                 float(np.abs(orb.x0).max()))
 
 
 def by_integration(res: Any, K, M, forces: Callable[[np.ndarray], np.ndarray], A: float, *,
                    periods: float = 3.0, rtol: float = 1e-7, tangent: Callable | None = None,
-                   integrator: Any = None, samples_per_period: int = 16, what: str = "") -> Check:
-    """Integrate from ``(x, v)(0, rho(A))`` over ``periods`` periods (:func:`stepnf.verify.integrate.measure`)."""
+                   integrator: Any = None, samples_per_period: int = 16, what: str = "",
+                   jacobian: str = "auto", per_period: int | None = None) -> Check:
+    """Integrate from ``(x, v)(0, rho(A))`` over ``periods`` periods (:func:`stepnf.verify.integrate.measure`).
+
+    ``jacobian``: the implicit steps' Newton (:data:`stepnf.verify.integrate.JACOBIANS`, ``--tangent``);
+    ``per_period``: steps per period of the coarse level (``--steps-per-period``; default from ``rtol``).
+    """
     from stepnf.verify.integrate import EnergyConserving, measure
 
     t0 = time.perf_counter()
@@ -163,16 +176,29 @@ def by_integration(res: Any, K, M, forces: Callable[[np.ndarray], np.ndarray], A
     chart = Chart(res, K, M)
     # Newton to 1e-10 of the state: over <= 1e3 steps the accumulated error stays <= 1e-7, below rtol, and
     # above the round-off floor of a large FE model's solves (modified Newton stalls near 1e-11 there)
-    integ = integrator or EnergyConserving(M, K, forces, tangent=tangent, tol=1e-10)
+    integ = integrator or EnergyConserving(M, K, forces, tangent=tangent, tol=1e-10, jacobian=jacobian,
+                                           hint=newton_hint(jacobian, per_period, rtol))
     x0, v0 = res.displacement(0.0, rho), res.velocity(0.0, rho)
     level = float(chart.Mphi @ res.displacement(np.pi / 2, rho))  # q at theta = pi/2: crossed mid-swing
     m = measure(integ, x0, v0, watch=chart.Mphi, omega=bb.frequency(rho), periods=periods, rtol=rtol,
-                level=level, keep_per_period=samples_per_period, what=what or "time integration")
+                level=level, keep_per_period=samples_per_period, what=what or "time integration",
+                per_period=per_period)
     dist = max(chart.distance(x, v, rho) for _, x, v in m.finest.states)
-    work = {"levels": [{k: d[k] for k in ("dt", "steps", "newton_iterations", "force_evaluations",
-                                          "tangent_steps")} for d in m.levels]}
+    work = {"levels": [{k: d[k] for k in ("dt", "steps", "newton_iterations", "force_evaluations", "tangent_steps",
+                                          "secant_steps", "krylov_steps", "jacobian_products", "halved_steps")}
+                       for d in m.levels]}
     return Check(A, float(bb.omega_at(m.amplitude)[0]), m.omega, m.amplitude, dist, "integration",
-                 m.omega_error, time.perf_counter() - t0, work)
+                 m.omega_error, time.perf_counter() - t0, work, float(np.abs(x0).max()))
+
+
+def newton_hint(jacobian: str, per_period: int | None, rtol: float) -> str:
+    """What to change when an implicit step does not converge: the keys of ``stepnf verify``."""
+    from stepnf.verify.integrate import steps_per_period
+
+    now = per_period or steps_per_period(rtol)
+    other = ("" if jacobian in ("auto", "differences") else
+             " or --tangent differences (Newton-Krylov by directional differences of the forces)")
+    return f"more steps per period may help: --steps-per-period {4 * now} (now {now})" + other
 
 
 # --------------------------------------------------------------------------- scene
@@ -224,7 +250,8 @@ def scene_amplitudes(spec: Any, limit: float | None) -> tuple[list[float], str]:
 
 def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, periods: float = 3.0,
                  rtol: float = 1e-6, fractions: Sequence[float] = (1 / 3, 2 / 3, 1.0),
-                 progress: Callable[[str], None] | None = None, integrator: str = "auto") -> dict:
+                 progress: Callable[[str], None] | None = None, integrator: str = "auto",
+                 tangent: str = "auto", per_period: int | None = None) -> dict:
     """Run the scene's backbone (:func:`stepnf.pipeline.run.run_on_adapter`), then check every master mode.
 
     Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``,
@@ -239,7 +266,13 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
     ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit is listed
     under ``failed`` (:func:`failed_orbits`) and the other checks still run. ``integrator``: the
     shooting's (:class:`stepnf.verify.periodic.Shooting`: ``"auto"`` implicit for a stiff model); ``progress``
-    gets a line before each orbit (:class:`OrbitClock`).
+    gets a line before each orbit (:class:`OrbitClock`). ``tangent`` (``--tangent``, one of
+    :data:`stepnf.verify.integrate.JACOBIANS`): the time integration's Newton (``"auto"``: modified, then
+    the model's tangent, else a secant iteration and Newton-Krylov by directional differences of the
+    forces, :mod:`stepnf.verify.integrate`; ``"tangent"`` needs
+    a model that gives one; ``"differences"`` never asks the model's); the shooting uses the model's tangent
+    when there is one, else differences, whatever ``tangent``. ``per_period`` (``--steps-per-period``): steps
+    per period of the integration's coarse level (default from ``rtol``), or of the implicit shooting.
     """
     from stepnf.pipeline.model import is_modal_model, open_model
     from stepnf.pipeline.run import run_on_adapter
@@ -256,12 +289,23 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                          f"[analysis.backbone] amplitudes), got {list(amplitudes)}")
     if not (np.isfinite(periods) and 1 <= periods <= MAX_PERIODS):
         raise SceneError(where, None, f"--periods must be a number in [1, {MAX_PERIODS}], got {periods}")
+    from stepnf.verify.integrate import JACOBIANS
+
+    if tangent not in JACOBIANS:
+        raise SceneError(where, None, f"--tangent must be one of {', '.join(JACOBIANS)}, got {tangent!r}")
+    if per_period is not None and not (isinstance(per_period, (int, np.integer)) and
+                                       STEPS_RANGE[0] <= per_period <= STEPS_RANGE[1]):
+        raise SceneError(where, None, f"--steps-per-period must be a whole number in [{STEPS_RANGE[0]}, "
+                         f"{STEPS_RANGE[1]}], got {per_period}")
     if is_modal_model(scene):
         raise SceneError(where, "model.solver", f"stepnf verify integrates the full model: solver "
                          f"{scene.solver!r} is a model in modal coordinates, not a solver adapter")
     say("running the scene's backbone")
     adapter = open_model(scene)  # one model for the run and the orbits: its K and M from the run's model stage
     try:
+        if tangent == "tangent" and not adapter.provides_tangent_stiffness:
+            raise SceneError(where, None, f"--tangent tangent: solver {scene.solver!r} gives no tangent stiffness; "
+                             "use --tangent auto or differences (directional differences of its forces)")
         result, model = run_on_adapter(scene, adapter)
         backbones = getattr(result, "backbones", None)
         if backbones is None:
@@ -269,6 +313,7 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                              "backbones is missing): nothing to verify")
         K, M = model.K, model.M
         n = K.shape[0]
+        jacobian = tangent  # the integration's Newton; the shooting takes the model's tangent when there is one
         tangent = adapter.tangent_stiffness if adapter.provides_tangent_stiffness else None
         shooting = n <= (SHOOTING_LIMIT if tangent is not None else 40)
         if shooting:  # the integrator chosen for each master (stepnf.verify.periodic.Shooting), whatever its orbits do
@@ -311,11 +356,13 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                     if shooting:
                         chk = by_shooting(res, K, M, adapter.internal_force, A, forces=adapter.internal_forces,
                                           tangent=(lambda u: tangent(u).toarray()) if tangent else None,
-                                          integrator=integrator, w_max=w_max)
+                                          integrator=integrator, w_max=w_max, per_period=per_period)
                     else:
                         chk = by_integration(res, K, M, adapter.internal_forces, A, periods=periods, rtol=rtol,
-                                             tangent=tangent)
-                except NumericalError as exc:  # reported with the checks that worked (exit 3: stepnf.cli.main)
+                                             tangent=tangent, jacobian=jacobian, per_period=per_period)
+                # reported with the checks that worked (exit 3: stepnf.cli.main); an AdapterError: the solver's
+                # forces not finite at a state of this orbit (too large an amplitude), the others still run
+                except (NumericalError, AdapterError) as exc:
                     entry.setdefault("failed", []).append({"amplitude": float(A), "error": f"{who}: {exc}"})
                     continue
                 finally:
@@ -336,49 +383,19 @@ def _validity_limit(bb: Any, block: dict | None, tol: float) -> tuple[float | No
     return bb.validity_limit(tol)
 
 
-class OrbitClock:
-    """The progress line of ``verify``: before each orbit, which one (mode, amplitude), ``k of n``, the
-    time elapsed since the clock started and an estimate of the time left (the mean time of the orbits
-    done times the orbits left; none before the first has finished); at the end, the total.
-    ``say(text)``: where the lines go (stepnf.cli.main: stderr)."""
-
-    def __init__(self, total: int, say: Callable[[str], None]):
-        self.total, self.say = int(total), say
-        self.done, self.spent = 0, 0.0
-        self.t0 = time.perf_counter()
-        self._t = None
-
-    def start(self, what: str) -> None:
-        self._t = time.perf_counter()
-        elapsed = self._t - self.t0
-        left = (f"about {_seconds(self.spent / self.done * (self.total - self.done))} left" if self.done
-                else "estimate after the first orbit")
-        self.say(f"verify: {what}: orbit {self.done + 1} of {self.total} (elapsed {_seconds(elapsed)}, {left})")
-
-    def stop(self) -> None:
-        self.spent += time.perf_counter() - self._t
-        self.done += 1
-
-    def finish(self) -> None:
-        self.say(f"verify: {self.done} orbit{'s' if self.done != 1 else ''} in {_seconds(self.spent)} "
-                 f"(elapsed {_seconds(time.perf_counter() - self.t0)})")
-
-
-def _seconds(t: float) -> str:
-    return f"{t:.1f} s" if t < 120 else f"{int(t // 60)} min {int(t % 60):02d} s"
-
-
 def _label(label: Any) -> Any:
     return list(label) if isinstance(label, tuple) else label
 
 
 def check_dict(c: Check, omega: float) -> dict:
-    """The JSON form of one check (frequencies as ratios to the linear ``omega`` and in rad/s)."""
+    """The JSON form of one check (frequencies as ratios to the linear ``omega`` and in rad/s;
+    ``max_displacement`` the largest displacement of the orbit's state at rest, W_max, length units)."""
     return {"amplitude": c.amplitude, "orbit_amplitude": c.orbit_amplitude,
             "omega_dpim": c.omega_dpim, "omega_check": c.omega_check,
             "omega_dpim_over_omega": c.omega_dpim / omega, "omega_check_over_omega": c.omega_check / omega,
             "relative_difference": c.difference, "manifold_distance": c.distance, "method": c.method,
-            "error_estimate": c.error_estimate, "seconds": round(c.seconds, 3), "work": c.work}
+            "error_estimate": c.error_estimate, "seconds": round(c.seconds, 3), "work": c.work,
+            "max_displacement": c.max_displacement}
 
 
 def failed_orbits(doc: dict) -> int:
@@ -408,6 +425,11 @@ def format_report(doc: dict) -> str:
             lines.append(f"  {c['orbit_amplitude']:12.6g} {c['omega_dpim_over_omega']:14.10f} "
                          f"{c['omega_check_over_omega']:14.10f} {c['relative_difference']:11.2e} "
                          f"{c['manifold_distance']:10.2e}")
+        for c in m["checks"]:  # a halved step is not the uniform scheme Richardson's estimate assumes
+            halved = sum(lv.get("halved_steps", 0) for lv in (c.get("work") or {}).get("levels", []))
+            if halved:
+                lines.append(f"  {c['orbit_amplitude']:12.6g}  {halved} step(s) halved where no Newton converged: "
+                             "more --steps-per-period gives the uniform steps the extrapolation assumes")
         for f in m.get("failed", []):
             lines.append(f"  {f['amplitude']:12.6g}  no orbit: {f['error']}")
         if not m["checks"] and not m.get("failed"):

@@ -25,9 +25,25 @@ extrapolation over ``dt, dt/2, dt/4`` effective (:func:`romberg`).
 ``J0 = (2 / dt^2) M + K / 2`` factorised once per step size (contraction about
 ``(w dt)^2 / 4`` times the relative nonlinear stiffness: a few iterations at accurate steps);
 ``"tangent"`` the adapter's tangent at the predicted midpoint, factorised once per step;
-``"auto"`` modified Newton, switching to the tangent for a step whose modified iteration does not
-contract (when a tangent is given). Each iteration sends the two fields ``xm`` and ``x1`` to the
-black box in one batched call.
+``"differences"`` Newton-Krylov with ``J v`` by directional differences of the forces, preconditioned
+by ``J0`` (:mod:`stepnf.verify.krylov`: no tangent needed); ``"auto"`` modified Newton, switching for a
+step whose modified iteration does not contract to the tangent when one is given, else to the
+*secant stage* (the same iteration with a deep Anderson memory, :data:`DEEP_DEPTH`: a multisecant
+quasi-Newton whose low-rank correction of ``J0^-1`` is built from the differences of the residual
+along its own iterates), else to ``"differences"``. Once the modified iteration has failed it is not
+tried again in the run (a slender structure at a few thicknesses, where ``Kt`` differs from ``K`` by
+its membrane stiffening on ~20 directions, fails it at every step); the secant stage is tried at every
+step after that, Newton-Krylov (~4 times its cost) only where it fails. ``"modified"`` stops after
+the secant stage.
+Each iteration sends the two fields ``xm`` and ``x1`` to the black box in one batched call.
+
+**Step control**: a step none of these converges is done again as two half steps (each possibly
+halved again, :data:`HALVINGS` times at most); the trajectory is still recorded at the full steps
+(``halved_steps`` counts them). A halved step is another discretisation of the fast, unresolved
+components (``w_max dt >> 1``), which Richardson extrapolation does not know of: the trajectory can
+move by more than its estimate (tests/verify/test_newton_stages.py's stiff string, w_max dt ~ 200:
+9% and 25% after 40 steps halved differently), so ``stepnf verify`` notes such steps under its table; more
+steps per period avoid them.
 
 **Measurements** (:func:`crossings`, :func:`fit_period`, :func:`extrema`) work on the master
 coordinate ``q = phi^T M x`` and its rate ``q' = phi^T M v`` at every step, interpolated by the
@@ -46,7 +62,16 @@ from stepnf.errors import NumericalError
 from stepnf.linalg.factorization import factorize
 
 ForceBatch = Callable[[np.ndarray], np.ndarray]
-JACOBIANS = ("auto", "modified", "tangent")
+JACOBIANS = ("auto", "modified", "tangent", "differences")
+#: The secant stage (module docstring): Anderson memory, iterations, and the iterations without halving the
+#: increment after which it gives up (Anderson, like GMRES, stalls while it learns the outlying directions).
+#: A cantilever, L/h = 100, at W / h = 2, 4, 8: ~20 directions where J0^-1 J is far from 1 (up to 10 at W = 2 h),
+#: ~17, 28, 49 iterations a step; depth 5 does not converge, nor depth 40 at 4 h with a patience of 6.
+DEEP_DEPTH = 40
+DEEP_ITERATIONS = 150
+DEEP_PATIENCE = 20
+#: How many times a step that does not converge is halved (a step of dt / 2**HALVINGS at the least).
+HALVINGS = 3
 
 
 @dataclass
@@ -57,7 +82,10 @@ class Trajectory:
     ``w^T x`` and its rate ``w^T v`` at every step; ``states`` ``(t, x, v)`` every ``keep`` steps
     (the first and the last always); ``energy_drift`` the largest ``|E - E0| / E0`` at the kept
     states when a potential was given (else None); ``iterations``, ``force_evaluations``,
-    ``factorizations``, ``tangent_steps`` the work done.
+    ``factorizations``, ``tangent_steps`` the work done; ``secant_steps`` the steps given to the secant
+    stage (:data:`DEEP_DEPTH`); ``krylov_steps`` the steps given to Newton-Krylov
+    (:mod:`stepnf.verify.krylov`), ``jacobian_products`` its directional differences (four fields each),
+    ``halved_steps`` the steps done again as half steps.
     """
 
     dt: float
@@ -70,6 +98,10 @@ class Trajectory:
     force_evaluations: int = 0
     factorizations: int = 0
     tangent_steps: int = 0
+    secant_steps: int = 0
+    krylov_steps: int = 0
+    jacobian_products: int = 0
+    halved_steps: int = 0
 
 
 class EnergyConserving:
@@ -79,12 +111,13 @@ class EnergyConserving:
     the fields ``U`` (m, n), one per row; ``tangent(x)`` the tangent stiffness (n, n) or None;
     ``tol`` the Newton tolerance on the displacement increment, relative to the largest
     displacement of the initial state; ``depth`` the Anderson acceleration's memory (0: plain
-    modified Newton); ``backend`` the linear solver (:func:`stepnf.linalg.factorization.factorize`).
+    modified Newton); ``backend`` the linear solver (:func:`stepnf.linalg.factorization.factorize`);
+    ``jacobian`` one of :data:`JACOBIANS` (module docstring).
     """
 
     def __init__(self, M, K, forces: ForceBatch, *, tangent: Callable | None = None, jacobian: str = "auto",
                  tol: float = 1e-12, maxiter: int = 40, depth: int = 5, backend: str = "auto",
-                 counters: Counters | None = None):
+                 counters: Counters | None = None, hint: str = ""):
         if jacobian not in JACOBIANS:
             raise ValueError(f"jacobian must be one of {list(JACOBIANS)}, got {jacobian!r}")
         if jacobian == "tangent" and tangent is None:
@@ -94,7 +127,10 @@ class EnergyConserving:
         self.forces, self.tangent, self.jacobian = forces, tangent, jacobian
         self.tol, self.maxiter, self.depth, self.backend = float(tol), int(maxiter), int(depth), backend
         self.counters = counters if counters is not None else Counters()
+        self.hint = hint  # said after a step that does not converge (stepnf verify: the keys to change)
         self._fac: dict[float, object] = {}
+        self._krylov = None  # stepnf.verify.krylov.KrylovNewton, made on first need (its Krylov memory kept)
+        self._stage = 0  # the first of _solve's stages tried (1, the secant stage, once modified Newton failed)
 
     # ------------------------------------------------------------ linear algebra
     def _matrix(self, dt: float, Kref) -> object:
@@ -104,7 +140,8 @@ class EnergyConserving:
 
     def _modified(self, dt: float):
         if dt not in self._fac:
-            self._fac.clear()  # one step size at a time
+            if len(self._fac) > HALVINGS:  # the run's step and its halves at most
+                self._fac.clear()
             self._fac[dt] = self._matrix(dt, self.K)
         return self._fac[dt]
 
@@ -113,8 +150,11 @@ class EnergyConserving:
         return np.asarray(self.forces(U), dtype=float)
 
     # ----------------------------------------------------------------- one step
-    def _newton(self, x0, v0, f0, x1, dt, J, scale) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    def _newton(self, x0, v0, f0, x1, dt, J, scale, depth: int | None = None,
+                maxiter: int | None = None, patience: int = 6) -> tuple[np.ndarray, np.ndarray, int, bool]:
         """Solve for ``x1`` from the guess with the factorised ``J``; ``(x1, f1, iterations, converged)``.
+        ``depth``, ``maxiter``: the Anderson memory and the iterations (default :attr:`depth`, :attr:`maxiter`);
+        it gives up when ``patience`` iterations have not halved the smallest increment before them.
 
         The fixed-point map ``x -> x - J^-1 r(x)`` is Anderson-accelerated (depth :attr:`depth`):
         with ``J`` built on K, the membrane (geometric) stiffness of a shell at amplitudes of the
@@ -122,12 +162,16 @@ class EnergyConserving:
         ~0.5; the acceleration restores a few iterations per step.
         """
         Mx = 2.0 / dt ** 2
+        depth = self.depth if depth is None else int(depth)
+        maxiter = self.maxiter if maxiter is None else int(maxiter)
         hist: list[float] = []
         X, Fh = [], []
-        for it in range(1, self.maxiter + 1):
+        for it in range(1, maxiter + 1):
             F = self._f(np.stack([0.5 * (x0 + x1), x1]))
             fbar = (f0 + 4.0 * F[0] + F[1]) / 6.0
             r = Mx * (self.M @ (x1 - x0 - dt * v0)) + fbar
+            if not np.all(np.isfinite(r)):  # forces not finite at this iterate: not converging
+                return x1, F[1], it, False
             dx = -J.solve(r)
             size = float(np.abs(dx).max())
             if not np.isfinite(size):
@@ -136,8 +180,8 @@ class EnergyConserving:
                 return x1 + dx, self._f((x1 + dx)[None])[0], it, True
             X.append(x1.copy())
             Fh.append(dx)
-            if len(X) > 1 and self.depth:
-                X, Fh = X[-self.depth - 1:], Fh[-self.depth - 1:]
+            if len(X) > 1 and depth:
+                X, Fh = X[-depth - 1:], Fh[-depth - 1:]
                 dF = np.column_stack([Fh[i + 1] - Fh[i] for i in range(len(Fh) - 1)])
                 dX = np.column_stack([X[i + 1] - X[i] for i in range(len(X) - 1)])
                 gamma = np.linalg.lstsq(dF, dx, rcond=None)[0]
@@ -145,9 +189,9 @@ class EnergyConserving:
             else:
                 x1 = x1 + dx
             hist.append(size)
-            if it >= 12 and min(hist[-6:]) > 0.5 * min(hist[:-6]):  # no progress over 6 iterations
+            if it >= 2 * patience and min(hist[-patience:]) > 0.5 * min(hist[:-patience]):  # no progress
                 return x1, F[1], it, False
-        return x1, F[1], self.maxiter, False
+        return x1, F[1], maxiter, False
 
     def run(self, x0: np.ndarray, v0: np.ndarray, dt: float, steps: int, *, watch: np.ndarray,
             keep: int = 0, potential: Callable[[np.ndarray], float] | None = None,
@@ -171,26 +215,15 @@ class EnergyConserving:
         states = [(0.0, x.copy(), v.copy())]
         E0 = self._energy(x, v, potential)
         drift = 0.0 if E0 is not None else None
-        total, tangent_steps = 0, 0
+        work = dict.fromkeys(("iterations", "tangent_steps", "secant_steps", "krylov_steps", "halved_steps"), 0)
+        products0 = self._krylov.products if self._krylov is not None else 0
         past = [x.copy()]
         for k in range(1, steps + 1):
             if len(past) == 4:  # cubic extrapolation of the last four states: O(dt^4)
                 guess = 4.0 * past[3] - 6.0 * past[2] + 4.0 * past[1] - past[0]
             else:
                 guess = x + dt * v + (0.5 * dt * dt * a if a is not None else 0.0)
-            ok = False
-            if self.jacobian != "tangent":
-                x1, f1, it, ok = self._newton(x, v, f, guess, dt, self._modified(dt), scale)
-                total += it
-            if not ok and self.tangent is not None:
-                tangent_steps += 1
-                J = self._matrix(dt, (2.0 * self.tangent(0.5 * (x + guess)) + self.tangent(guess)) / 3.0)
-                x1, f1, it, ok = self._newton(x, v, f, guess, dt, J, scale)
-                total += it
-            if not ok:
-                raise NumericalError(f"{what}: Newton did not converge at t = {k * dt:.6g} (step {k} of dt = "
-                                     f"{dt:.6g}); a smaller step or a tangent stiffness may help")
-            v1 = 2.0 * (x1 - x) / dt - v
+            x1, v1, f1 = self._advance(x, v, f, a, guess, dt, scale, work, 0, (what, k * dt, k, dt))
             big = max(float(np.abs(x1).max()), float(np.abs(v1).max()) * dt)
             if not (np.isfinite(big) and big <= 1e3 * scale):
                 raise NumericalError(f"{what}: the integration diverged at t = {k * dt:.6g} "
@@ -204,8 +237,62 @@ class EnergyConserving:
                 E = self._energy(x, v, potential)
                 if E is not None:
                     drift = max(drift, abs(E - E0) / abs(E0))
-        return Trajectory(dt, t, q, qd, states, drift, total, self.counters.force_evaluations - nf0,
-                          self.counters.factorizations - ev0, tangent_steps)
+        products = (self._krylov.products if self._krylov is not None else 0) - products0
+        return Trajectory(dt, t, q, qd, states, drift, work["iterations"], self.counters.force_evaluations - nf0,
+                          self.counters.factorizations - ev0, work["tangent_steps"], work["secant_steps"],
+                          work["krylov_steps"], products, work["halved_steps"])
+
+    def _solve(self, x, v, f, guess, dt, scale, work) -> tuple[np.ndarray, np.ndarray, bool]:
+        """``(x1, f1, converged)`` of one step by the Newton iterations :attr:`jacobian` allows, in turn
+        (module docstring); once modified Newton has failed, the next steps start at the secant stage."""
+        ok, J0 = False, self._modified(dt)
+        if self.jacobian in ("auto", "modified") and self._stage == 0:
+            x1, f1, it, ok = self._newton(x, v, f, guess, dt, J0, scale)
+            work["iterations"] += it
+        if not ok and self.tangent is not None and self.jacobian != "differences":
+            work["tangent_steps"] += 1
+            J = self._matrix(dt, (2.0 * self.tangent(0.5 * (x + guess)) + self.tangent(guess)) / 3.0)
+            x1, f1, it, ok = self._newton(x, v, f, guess, dt, J, scale)
+            work["iterations"] += it
+        if not ok and self.jacobian in ("auto", "modified") and self.tangent is None:
+            self._stage = 1  # the secant stage: a deep Anderson memory on the same K
+            work["secant_steps"] += 1
+            x1, f1, it, ok = self._newton(x, v, f, guess, dt, J0, scale, DEEP_DEPTH, DEEP_ITERATIONS,
+                                          DEEP_PATIENCE)
+            work["iterations"] += it
+        krylov = self.jacobian == "differences" or (self.jacobian == "auto" and self.tangent is None)
+        if not ok and krylov:
+            from stepnf.verify.krylov import KrylovNewton
+
+            if self._krylov is None:
+                self._krylov = KrylovNewton(self.M, self._f, tol=self.tol)
+            work["krylov_steps"] += 1
+            x1, f1, it, ok = self._krylov.solve(x, v, f, guess, dt, J0, scale)
+            work["iterations"] += it
+        return x1, f1, ok
+
+    def _advance(self, x, v, f, a, guess, dt, scale, work, depth: int, where: tuple):
+        """``(x1, v1, f1)`` one step of ``dt`` on, as two half steps when no Newton converges (module docstring);
+        ``where``: ``(what, t, k, dt)`` of the run's step, for the message."""
+        x1, f1, ok = self._solve(x, v, f, guess, dt, scale, work)
+        if ok:
+            return x1, 2.0 * (x1 - x) / dt - v, f1
+        if depth >= HALVINGS:
+            tried = {"auto": "modified Newton" + (", the model's tangent" if self.tangent is not None else
+                                                   ", secant, Newton-Krylov by directional differences of f"),
+                     "modified": "modified Newton" + (", the model's tangent" if self.tangent is not None else
+                                                       ", secant"),
+                     "tangent": "the model's tangent", "differences": "Newton-Krylov by directional differences"}
+            what, t, k, step = where
+            raise NumericalError(f"{what}: Newton did not converge at t = {t:.6g} (step {k} of dt = {step:.6g}; "
+                                 f"tried {tried[self.jacobian]}, and the step halved {HALVINGS} times); "
+                                 + (self.hint or "a smaller step or a tangent stiffness may help"))
+        work["halved_steps"] += depth == 0
+        h = 0.5 * dt
+        a0 = np.zeros_like(x) if a is None else a
+        xh, vh, fh = self._advance(x, v, f, a, x + h * v + 0.5 * h * h * a0, h, scale, work, depth + 1, where)
+        ah = (vh - v) / h
+        return self._advance(xh, vh, fh, ah, xh + h * vh + 0.5 * h * h * ah, h, scale, work, depth + 1, where)
 
     def _energy(self, x, v, potential) -> float | None:
         if potential is None:
@@ -327,15 +414,15 @@ class Measurement:
 def measure(integ: EnergyConserving, x0: np.ndarray, v0: np.ndarray, *, watch: np.ndarray, omega: float,
             periods: float = 3.0, rtol: float = 1e-8, levels: int = 2, level: float | None = None,
             keep_per_period: int = 0, potential: Callable | None = None,
-            what: str = "time integration") -> Measurement:
+            what: str = "time integration", per_period: int | None = None) -> Measurement:
     """Integrate ``periods`` periods (of the guess ``omega``) at ``levels`` step sizes and measure.
 
-    The coarse step gives :func:`steps_per_period` (``rtol``, ``levels``) steps per period; each
-    level halves it. The period is the least-squares fit of the crossings of ``level`` (default:
+    The coarse step gives ``per_period`` steps per period (default :func:`steps_per_period` of ``rtol``,
+    ``levels``); each level halves it. The period is the least-squares fit of the crossings of ``level`` (default:
     the middle of the first run's range), both directions; the amplitude the mean of the
     extrema. ``keep_per_period``: states kept per period on the finest level (for manifold distances).
     """
-    ns = steps_per_period(rtol, levels)
+    ns = int(per_period) if per_period else steps_per_period(rtol, levels)
     T = 2 * np.pi / omega
     out, tr = [], None
     for j in range(levels):
@@ -353,7 +440,9 @@ def measure(integ: EnergyConserving, x0: np.ndarray, v0: np.ndarray, *, watch: n
         out.append({"dt": tr.dt, "steps": steps, "omega": 2 * np.pi / period,
                     "amplitude": 0.5 * (float(hi.mean()) - float(lo.mean())),
                     "newton_iterations": tr.iterations, "force_evaluations": tr.force_evaluations,
-                    "tangent_steps": tr.tangent_steps, "energy_drift": tr.energy_drift})
+                    "tangent_steps": tr.tangent_steps, "secant_steps": tr.secant_steps, "krylov_steps": tr.krylov_steps,
+                    "jacobian_products": tr.jacobian_products, "halved_steps": tr.halved_steps,
+                    "energy_drift": tr.energy_drift})
     w, err = romberg([d["omega"] for d in out])
     A, _ = romberg([d["amplitude"] for d in out])
     return Measurement(w, err / w if np.isfinite(err) else float("nan"), A, out, tr)

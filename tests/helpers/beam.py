@@ -34,3 +34,13 @@ def boundary_toml(bcs) -> str:
         rows.append("[[model.boundary]]")
         rows += [f"{k} = {json.dumps(v)}" for k, v in bc.items()]
     return "\n".join(rows)
+
+
+def beam_scene(mesh: str, bcs, *, methods=("dnf", "md", "smd"), analysis: str = "", out: str = "out") -> str:
+    """A FEniCSx scene of the beam's mesh file ``mesh`` (steel, nu = 0.3), the conditions ``bcs``
+    (:func:`boundary_toml`), master mode 0, thickness HB, transverse uz; ``analysis``: more lines (tables)
+    after ``[analysis]``; no plot."""
+    return (f'[model]\nsolver = "fenicsx"\nmesh = "{mesh}"\n[model.material]\nE = 2.1e11\nnu = 0.3\n'
+            f'rho = 7800.0\n{boundary_toml(bcs)}\n[analysis]\nmaster_modes = [0]\n'
+            f'methods = {json.dumps(list(methods))}\nthickness = {HB!r}\ntransverse = "uz"\n{analysis}\n'
+            f'[output]\ndir = "{out}"\nplot = false\n')

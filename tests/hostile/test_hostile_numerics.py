@@ -89,24 +89,25 @@ def test_a_given_rigid_count_below_the_dofs_is_honoured(tmp_path, capsys):
     assert doc["spectrum"]["n_rigid"] == 5 and len(doc["spectrum"]["omega"]) == 1
 
 
-def test_soft_elastic_modes_counted_rigid_are_named(tmp_path, capsys):
-    """Eigenvalues 1e-12 and 3e-13 (of lambda_max = 25) pass as rigid by the tolerance: warn, naming them."""
-    w = np.sqrt([3e-13, 1e-12, 1.0, 2.3, 3.1, 25.0])
+def test_soft_elastic_modes_below_the_rigid_tolerance_stay_elastic(tmp_path, capsys):
+    """Eigenvalues 1e-10 and 2e-10 (of lambda_max = 25) lie below rigid_tolerance x lambda_max (2.5e-10), but
+    K has no null vector there (issue 31: the tolerance only names candidates): both stay elastic modes,
+    no mode is set aside and nothing warns of soft modes counted rigid (was: both counted rigid, a warning)."""
+    w = np.sqrt([1e-10, 2e-10, 1.0, 2.3, 3.1, 25.0])
     p = write_scene(tmp_path, "soft", *diagonal_system(w, {3: 0.1}))
-    with pytest.warns(ModelWarning, match="very soft elastic modes"):  # on stderr as "stepnf: warning: ..."
-        o = run_cli(["run", p, "-q", "--json"], capsys)
-    assert o.code == 0 and "Traceback" not in o.err
-    doc = json.loads(o.out)
-    flag = [f for f in doc["flags"] if f["kind"] == "soft_modes_counted_rigid"]
-    # eps / 1e-2 x 25 = 5.6e-13: 1e-12 is above round-off, 3e-13 is not (an honest zero could be that large)
-    assert len(flag) == 1 and flag[0]["modes"] == [1]
-    # the user who says how many rigid modes there are gets no warning
-    p2 = write_scene(tmp_path, "soft2", *diagonal_system(w, {3: 0.1}), analysis="rigid_modes = 1")
     with warnings.catch_warnings():
         warnings.simplefilter("error", ModelWarning)
-        o2 = run_cli(["run", p2, "-q", "--json"], capsys)
+        o = run_cli(["run", p, "-q", "--json"], capsys)
+    assert o.code == 0 and "Traceback" not in o.err, o.err
+    doc = json.loads(o.out)
+    assert doc["spectrum"]["n_rigid"] == 0 and not [f for f in doc["flags"] if f["kind"] == "soft_modes_counted_rigid"]
+    # K = diag(w^2) is exact: mode 0 is the first eigenvalue to the last bit
+    assert doc["modes"][0]["omega"] == pytest.approx(1e-5, rel=1e-12)
+    # the user who says how many rigid modes there are keeps that count
+    p2 = write_scene(tmp_path, "soft2", *diagonal_system(w, {3: 0.1}), analysis="rigid_modes = 1")
+    o2 = run_cli(["run", p2, "-q", "--json"], capsys)
     assert o2.code == 0, o2.err
-    assert json.loads(o2.out)["modes"][0]["omega"] == pytest.approx(1e-6, rel=1e-6)
+    assert json.loads(o2.out)["modes"][0]["omega"] == pytest.approx(np.sqrt(2e-10), rel=1e-12)
 
 
 def test_dnf_names_a_degenerate_pair_at_twice_the_frequency_once(tmp_path, capsys):

@@ -129,7 +129,8 @@ def test_linearised_T_error_on_the_cap_matches_a_second_solve(monkeypatch):
             a = orig(p, phi, w, Gv, h, ctx, *args, dGv=s * dGv, dh=s * dh, spectrum=spectrum, **kw)
             kw.pop("y", None)  # DNF's K^+ Gv: not that of the shifted Gv
             b = orig(p, phi, w, Gv - s * dGv, h - s * dh, ctx, *args, **kw)
-            seen.append((name, p, r.T == a.T, a.T_error / (abs(a.T - b.T) / abs(a.T))))
+            change = a.extra.get("T_change", a.T_error)  # the linearised change (T_error adds the rounding bound)
+            seen.append((name, p, r.T == a.T, change / (abs(a.T - b.T) / abs(a.T))))
             return r
         return wrapped
 
@@ -141,7 +142,11 @@ def test_linearised_T_error_on_the_cap_matches_a_second_solve(monkeypatch):
         assert same_T and abs(ratio - 1) <= 5 * eps, (name, p, ratio)
     for m in res.modes:
         for name in ("md", "smd"):
-            assert m.methods[name].T_error is not None and m.methods[name].T_error < 1e-6
+            # the change between the STEP amplitudes (measured ~1e-7) and the rounding bound of
+            # nf/roundoff.py (a sum of magnitudes, measured 1.7e-6)
+            r = m.methods[name]
+            assert r.extra["T_change"] is not None and r.extra["T_change"] < 1e-6
+            assert r.T_error == max(r.extra["T_change"], r.extra["roundoff"]) < 1e-5
 
 
 # ----------------------------------------------------------------------------- M^-1 norm

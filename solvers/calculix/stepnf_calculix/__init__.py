@@ -36,7 +36,8 @@ Scene keys (``[model]``)::
 
 or, instead of ``[model.geometry]``, ``mesh = "part.inp"`` (a user's solid
 mesh: ``*NODE`` and ``*ELEMENT`` blocks of C3D* elements, ``*NSET`` and
-``*ELSET`` sets; the material of ``[model.material]`` applies to every
+``*ELSET`` sets, surface elements beside them taken as sets; or a Gmsh
+``part.msh``, its physical groups as sets: :mod:`.inpmesh`; the material of ``[model.material]`` applies to every
 element but those of the named element sets given their own, isotropic or
 orthotropic, :mod:`stepnf.plugin.materials`)::
 

@@ -18,17 +18,20 @@ from stepnf.geometry.keys import MATERIAL_KEYS
 from stepnf.geometry.solid import CapSolid
 from stepnf.plugin.materials import MATERIALS_KEY, Material
 from stepnf.runtime.programs import resolve_program
+from stepnf.runtime.progress import thousands
 from stepnf.keys.schema import Key, Schema
 
 from .deck import CCX_ELEMENTS, REAL, format_boundary, mesh_text
+from .inpmesh import MESH_SUFFIXES
 from .results import ResultFormatError, read_dat_forces, read_dof, read_matrix
 from .sections import Section, assign_sections, is_plain, isotropic_section, materials_text
 
 ELEMENTS = ("hex20",)
 #: Scene keys of ``[model]`` (besides ``solver``; ``stepnf solvers --keys calculix``).
 MODEL_KEYS = Schema(
-    *solid_model_keys(ELEMENTS, (".inp",), "a user's solid mesh: *NODE and *ELEMENT blocks of C3D* elements, "
-                      "*NSET and *ELSET sets"),
+    *solid_model_keys(ELEMENTS, MESH_SUFFIXES, "a user's solid mesh: an .inp file (*NODE and *ELEMENT blocks of "
+                      "C3D* elements, *NSET and *ELSET sets; surface elements beside them taken as sets) or a Gmsh "
+                      ".msh file (physical groups as sets)"),
     Key("deck", "file", "a user's whole CalculiX model (nodes, elements, sets, materials, sections, *BOUNDARY; its "
         "steps are replaced by stepnf's) instead of mesh or [model.geometry]", suffixes=(".inp",),
         what="a CalculiX deck file name"),
@@ -39,6 +42,8 @@ MODEL_KEYS = Schema(
         "templates/job.inp or materials_job.inp (not with deck)", what="a job template file name"),
     EXECUTABLE, THREADS, *RUN_KEYS,
 )
+#: CalculiX solid element types of order 1 (the others are quadratic).
+LINEAR_TYPES = ("C3D4", "C3D6", "C3D8", "C3D8R", "C3D8I")
 #: Largest number of ``*BOUNDARY`` lines (fields x dofs) in one deck; bigger batches are split over runs.
 MAX_BOUNDARY_LINES = 4_000_000
 
@@ -138,6 +143,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self.step_template = shipped_template("force_step.inp")
         self.matrix_template = shipped_template("matrix_step.inp")
         self.geometry = dict(geometry or {})
+        #: surface and line elements of the mesh file, not modelled (``{type: count}``, :mod:`.inpmesh`)
+        self.facets_ignored: dict[str, int] = {}
         self.midsurface = None if midsurface is None else np.asarray(midsurface, dtype=bool)
         self.node_sets = node_sets if node_sets is not None else {}
         self.threads = threads
@@ -226,12 +233,14 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
     @classmethod
     def from_inp(cls, path: str | Path, **kw: Any) -> "CalculixAdapter":
-        """A user's mesh from an ``.inp`` file, with its named sets (see :mod:`.inpmesh`)."""
-        from .inpmesh import read_inp_mesh
+        """A user's mesh from an ``.inp`` or Gmsh ``.msh`` file, with its named sets (see :mod:`.inpmesh`)."""
+        from .inpmesh import read_mesh_file
 
-        m = read_inp_mesh(path)
-        return cls(m.node_ids, m.points, m.blocks, node_sets=m.node_sets, element_sets=m.element_sets, source=path,
-                   **kw)
+        m = read_mesh_file(path)
+        ad = cls(m.node_ids, m.points, m.blocks, node_sets=m.node_sets, element_sets=m.element_sets, source=path,
+                 **kw)
+        ad.facets_ignored = dict(m.facets)
+        return ad
 
     from_mesh_file = from_inp  # the ``mesh`` key (SolidFromScene)
 
@@ -263,7 +272,7 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     def input_files(cls, checked: Mapping[str, Any]) -> list[Path]:
         """The files a ``deck`` or ``mesh`` includes (``*INCLUDE``, nested ones too), for the key of stored
         results (:mod:`stepnf.scene.model_key`); an unreadable deck is left to the build to report."""
-        from .inpfile import inp_lines
+        from stepnf.geometry.inp import inp_lines
 
         out: list[Path] = []
         for key in ("deck", "mesh"):
@@ -281,6 +290,17 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
         return deck_output_mesh(self.node_ids, self.points, self.blocks)
 
+    def summary(self) -> str:
+        """The run's first line about the model: ``mesh: 40 C3D20 elements (order 2), 729 nodes, 2 187 dofs``
+        (and the facet elements of the mesh file left out, :mod:`.inpmesh`)."""
+        elements = ", ".join(f"{thousands(len(e))} {t}" for t, e, _ in self.blocks)
+        orders = sorted({1 if t in LINEAR_TYPES else 2 for t, _, _ in self.blocks})
+        free = " free" if self.free_dofs is not None else ""
+        facets = "; not modelled: " + ", ".join(f"{n} {t} facets" for t, n in self.facets_ignored.items()) \
+            if self.facets_ignored else ""
+        return (f"mesh: {elements} elements (order {' and '.join(map(str, orders))}), {thousands(len(self.node_ids))} "
+                f"nodes, {thousands(self.n_dofs)}{free} dofs{facets}")
+
     def describe(self) -> dict[str, Any]:
         d = super().describe()
         d.update(
@@ -294,6 +314,8 @@ class CalculixAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             d["materials"] = [s.describe() for s in self.sections]
         if self.deck is not None:
             d["deck"] = self.deck.summary
+        if self.facets_ignored:
+            d["facets_ignored"] = dict(self.facets_ignored)
         if self.free_dofs is not None:
             d["boundary"] = {"conditions": list(self.applied_conditions), **self.free_dofs.describe(),
                              "from_deck": int(len(self.deck.fixed)) if self.deck is not None else 0}

@@ -1,7 +1,7 @@
 """The output mesh of the CalculiX adapter (for :mod:`stepnf.io.fields`): the nodes and elements ccx runs.
 
 Each ``C3D*`` element block becomes a meshio cell block of the same node order
-(:data:`.inpfile.MESHIO_TYPES`: CalculiX's solid elements number their nodes
+(:data:`stepnf.geometry.inp.MESHIO_TYPES`: CalculiX's solid elements number their nodes
 as VTK does), with node ids turned into 0-based positions in ``points``. The
 dofs are the nodes' translations (dof ``3 i + d``), so every dof lies on a
 point.
@@ -14,7 +14,7 @@ import numpy as np
 
 from stepnf.plugin import OutputMesh
 
-from .inpfile import MESHIO_TYPES
+from stepnf.geometry.inp import MESHIO_TYPES
 
 
 def deck_output_mesh(node_ids: np.ndarray, points: np.ndarray,

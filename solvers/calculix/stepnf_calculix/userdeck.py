@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from .inpfile import Block, InpError, InpMesh, InpModel, Line, inp_lines, keyword_blocks, tokens, where
+from stepnf.geometry.inp import Block, InpError, InpMesh, InpModel, Line, inp_lines, keyword_blocks, tokens, where
 
 #: The node set stepnf adds (every node an element uses): its force output.
 STEPNF_NSET = "STEPNF_NODES"
@@ -117,7 +117,7 @@ class _Material:
 
 
 def read_deck(path: str | Path) -> UserDeck:
-    """Read the deck ``path`` (see the module docstring); an :class:`~.inpfile.InpError` (a SceneError)
+    """Read the deck ``path`` (see the module docstring); an :class:`~stepnf.geometry.inp.InpError` (a SceneError)
     naming the file, the line and the keyword for anything stepnf cannot honour."""
     reader = _DeckReader(Path(path))
     for block in keyword_blocks(inp_lines(Path(path))):
@@ -140,7 +140,7 @@ def _numbers(block: Block, err) -> list[float]:
 
 
 class _DeckReader:
-    #: keyword -> method reading it (besides the mesh and sets, which :class:`~.inpfile.InpModel` reads)
+    #: keyword -> method reading it (besides the mesh and sets, which :class:`~stepnf.geometry.inp.InpModel` reads)
     handlers = {"MATERIAL": "_material", "ELASTIC": "_elastic", "DENSITY": "_density",
                 "SOLID SECTION": "_solid_section", "ORIENTATION": "_orientation"}
 

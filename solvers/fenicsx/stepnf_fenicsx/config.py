@@ -75,7 +75,8 @@ ELEMENTS = ("hex27", "tet10")
 MODEL_KEYS = Schema(
     Key("element", "choice", "finite element of the generated cap or of the mesh", default="hex27",
         choices=ELEMENTS),
-    Key("mesh", "file", "a user's solid mesh, any format meshio reads (instead of a generated geometry)",
+    Key("mesh", "file", "a user's solid mesh: an .inp (stepnf's reader, the calculix adapter's) or any format meshio "
+        "reads (instead of a generated geometry)",
         what="a mesh file name"),
     # 12: exact for every element used
     Key("quadrature_degree", "integer", "quadrature degree of the forms", default=4, lo=2, hi=12),

@@ -2,7 +2,7 @@
 
 A scene's ``[[model.boundary]]`` tables (:mod:`stepnf.plugin.boundary`, the one
 vocabulary of every FE adapter) select *mesh nodes*: a named set of the mesh
-file (:func:`stepnf_fenicsx.meshfile.read_node_sets`: meshio point sets, cell
+file (:func:`stepnf.geometry.mesh_sets.read_node_sets`: meshio point sets, cell
 sets and their nodes, Gmsh physical groups of any dimension, MED groups), the
 set ``"edge"`` of a generated cap (every node of its lateral face), or the
 nodes inside a box.

@@ -1,12 +1,15 @@
-"""A user's mesh file for the ``fenicsx`` adapter: its volume cells, named node sets and cell sets, through meshio.
+"""A user's mesh file for the ``fenicsx`` adapter: its volume cells, named node sets and cell sets.
 
 :func:`read_mesh` keeps the volume cells of one type dolfinx can use
 (``hexahedron27``, ``tetra10``, ``hexahedron``, ``tetra``) or serendipity
 ``hexahedron20`` (a CalculiX ``C3D20`` mesh), which :func:`hex20_to_hex27`
 completes into quadratic hexahedra, so that the same mesh file serves both
-solvers. :func:`read_node_sets` gives the named node sets boundary conditions
-refer to (:mod:`stepnf.plugin.boundary`), :func:`read_cell_sets` the named sets of
-volume cells ``[model.materials.<set>]`` refer to (:mod:`stepnf_fenicsx.regions`).
+solvers. An ``.inp`` file is read by stepnf's own reader (:func:`read_inp`,
+:mod:`stepnf.geometry.inp`, the calculix adapter's), any other format by meshio,
+whose named sets :func:`stepnf.geometry.mesh_sets.read_node_sets` (the node sets
+boundary conditions refer to, :mod:`stepnf.plugin.boundary`) and
+:func:`~stepnf.geometry.mesh_sets.read_cell_sets` (the cell sets
+``[model.materials.<set>]`` refer to, :mod:`stepnf_fenicsx.regions`) give.
 Units: those of the file.
 """
 from __future__ import annotations
@@ -15,17 +18,14 @@ import contextlib
 import io
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Iterator, Mapping
 
 import numpy as np
 
 from stepnf.geometry import VolumeMesh
+from stepnf.geometry.mesh_sets import read_cell_sets, read_node_sets
 
 from . import _compat
 
-#: topological dimension of meshio cell types (by name prefix)
-_DIMS = (("vertex", 0), ("line", 1), ("triangle", 2), ("quad", 2), ("polygon", 2), ("tetra", 3),
-         ("hexahedron", 3), ("wedge", 3), ("pyramid", 3))
 #: the faces of a VTK hexahedron20/27 (-x +x -y +y -z +z): corners then mid-edge nodes; face centre 20 + i
 HEX_FACES = np.array([(0, 3, 7, 4, 11, 19, 15, 16), (1, 2, 6, 5, 9, 18, 13, 17), (0, 1, 5, 4, 8, 17, 12, 16),
                       (3, 2, 6, 7, 10, 18, 14, 19), (0, 1, 2, 3, 8, 9, 10, 11), (4, 5, 6, 7, 12, 13, 14, 15)])
@@ -33,13 +33,11 @@ HEX_FACES = np.array([(0, 3, 7, 4, 11, 19, 15, 16), (1, 2, 6, 5, 9, 18, 13, 17),
 READABLE = (*_compat.CELLS, "hexahedron20")
 
 
-def cell_dimension(cell_type: str) -> int | None:
-    """Topological dimension of a meshio cell type (``None`` when unknown)."""
-    return next((d for p, d in _DIMS if cell_type.startswith(p)), None)
-
-
 def read_mesh(path: str | Path) -> "MeshFile":
-    """Read the volume cells of any file meshio reads (one supported cell type) and its named node sets.
+    """Read the volume cells of a mesh file (one supported cell type) and its named node sets.
+
+    An Abaqus/CalculiX ``.inp`` file is read by stepnf's own reader, the one the ``calculix`` adapter uses
+    (:func:`read_inp`); any other format through meshio:
 
     ``node_sets``: :func:`read_node_sets` (point sets, cell sets, Gmsh physical groups, MED groups),
     numbered like the returned points; ``cell_sets``: :func:`read_cell_sets`, the named sets of its
@@ -48,6 +46,8 @@ def read_mesh(path: str | Path) -> "MeshFile":
     degenerate, tangled or overlapping cells) is a :class:`~stepnf.errors.MeshError` naming the file
     and the cell or node (0-based positions in the file, cells counted within their type).
     """
+    if Path(path).suffix.lower() == ".inp":
+        return read_inp(path)
     import meshio
 
     from stepnf.errors import MeshError
@@ -80,72 +80,38 @@ def read_mesh(path: str | Path) -> "MeshFile":
     return hex20_to_hex27(mesh) if mesh.cell_type == "hexahedron20" else mesh
 
 
-def named_cells(m: Any) -> Iterator[tuple[str, int, np.ndarray]]:
-    """``(name, block, positions)`` of every named group of cells of a meshio mesh: meshio cell sets (an
-    Abaqus ``*ELSET``...), Gmsh physical groups (``gmsh:physical`` cell data named by ``field_data``: the
-    cells of that tag in the blocks of the group's dimension), MED groups of cells (families of
-    ``cell_tags``); ``positions`` are the cells' rows within block ``block`` of ``m.cells``."""
-    cell_data: Mapping[str, Any] = getattr(m, "cell_data", None) or {}
-    for name, per_block in (getattr(m, "cell_sets", None) or {}).items():
-        if not str(name).startswith("gmsh:"):
-            for b, idx in enumerate(per_block):
-                if idx is not None and len(idx) and b < len(m.cells):
-                    yield str(name), b, np.asarray(idx, dtype=np.int64).ravel()
-    groups: list[tuple[str, Any, Any, int | None]] = []  # (name, cell data, tag, dimension)
-    if "gmsh:physical" in cell_data:
-        for name, value in (getattr(m, "field_data", None) or {}).items():
-            value = np.asarray(value).ravel()
-            groups.append((name, cell_data["gmsh:physical"], int(value[0]), int(value[1]) if len(value) > 1 else None))
-    for tag, names in (getattr(m, "cell_tags", None) or {}).items() if "cell_tags" in cell_data else ():
-        groups += [(name, cell_data["cell_tags"], tag, None) for name in names]
-    for name, tags, tag, dim in groups:
-        for b, t in enumerate(tags):
-            if b < len(m.cells) and (dim is None or cell_dimension(m.cells[b].type) == dim):
-                yield str(name), b, np.flatnonzero(np.asarray(t) == tag)
+def read_inp(path: str | Path) -> "MeshFile":
+    """An ``.inp`` mesh through :func:`stepnf.geometry.inp.read_inp_mesh` (``*ELSET ... GENERATE``, sets of
+    sets, ``*INCLUDE``; facet elements beside the solids taken as node sets and said by a
+    :class:`~stepnf.errors.ModelWarning`): nodes sorted by id (the calculix adapter's order), cells in the
+    order of the file's elements of one type, node and cell sets by upper-case name, looked up
+    case-insensitively (as ccx does)."""
+    import warnings
 
+    from stepnf.errors import MeshError, ModelWarning
+    from stepnf.geometry.inp import MESHIO_TYPES, SetNames, facets_note, read_inp_mesh
 
-def read_node_sets(m: Any, renum: np.ndarray) -> dict[str, np.ndarray]:
-    """Named node sets ``{name: sorted node indices}`` of a meshio mesh, numbered by ``renum`` (file
-    node -> mesh node, -1 for nodes no volume cell uses, which are dropped).
-
-    Point sets; the nodes of every named group of cells (:func:`named_cells`, whatever their dimension:
-    a Gmsh physical group of facets names the nodes of those facets); MED groups of nodes (families of
-    ``point_tags``). A name found in several of these gets the union.
-    """
-    found: dict[str, list[np.ndarray]] = {}
-
-    def add(name: str, nodes: Any) -> None:
-        found.setdefault(str(name), []).append(np.asarray(nodes, dtype=np.int64).ravel())
-
-    for name, idx in (getattr(m, "point_sets", None) or {}).items():
-        add(name, idx)
-    for name, b, idx in named_cells(m):
-        add(name, np.asarray(m.cells[b].data)[idx])
-    point_tags = (getattr(m, "point_data", None) or {}).get("point_tags")
-    for tag, names in (getattr(m, "point_tags", None) or {}).items() if point_tags is not None else ():
-        for name in names:
-            add(name, np.flatnonzero(np.asarray(point_tags) == tag))
-    out = {}
-    for name, parts in found.items():
-        nodes = np.unique(np.concatenate(parts))
-        nodes = renum[nodes[(nodes >= 0) & (nodes < len(renum))]]
-        out[name] = np.unique(nodes[nodes >= 0])
-    return out
-
-
-def read_cell_sets(m: Any, kind: str) -> dict[str, np.ndarray]:
-    """Named sets of volume cells ``{name: sorted cell indices}`` of a meshio mesh (:func:`named_cells`
-    holding cells of type ``kind``), numbered like :func:`read_mesh`'s cells: the cells of type ``kind``
-    in file order. A name holding only facets (or other cells) is no cell set."""
-    offset, n = {}, 0
-    for b, block in enumerate(m.cells):
-        if block.type == kind:
-            offset[b], n = n, n + len(block.data)
-    found: dict[str, list[np.ndarray]] = {}
-    for name, b, idx in named_cells(m):
-        if b in offset and len(idx):
-            found.setdefault(name, []).append(offset[b] + idx)
-    return {name: np.unique(np.concatenate(parts)) for name, parts in found.items()}
+    m = read_inp_mesh(path)
+    kinds = [MESHIO_TYPES[t] for t, _, _ in m.blocks]
+    if any(k not in READABLE for k in kinds):
+        raise MeshError(path, f"no volume cells dolfinx can use; found {[t for t, _, _ in m.blocks]}, supported "
+                              f"{list(READABLE)}")
+    if len(set(kinds)) > 1:
+        raise MeshError(path, f"mixed volume cell types {sorted({t for t, _, _ in m.blocks})}; give one cell type")
+    ids = np.concatenate([e for _, e, _ in m.blocks])
+    cells = np.searchsorted(m.node_ids, np.concatenate([c for _, _, c in m.blocks]))
+    cell_sets = SetNames()
+    for name, members in m.element_sets.items():
+        rows = np.flatnonzero(np.isin(ids, np.asarray(members, dtype=np.int64)))
+        if rows.size:
+            cell_sets[name] = rows
+    note = facets_note(m, path)
+    if note:
+        warnings.warn(note, ModelWarning, stacklevel=2)
+    info = {"file": str(path), **({"facets_ignored": dict(m.facets)} if m.facets else {})}
+    mesh = MeshFile(points=np.asarray(m.points, dtype=float), cells=cells.astype(np.int64), cell_type=kinds[0],
+                    info=info, node_sets=m.node_sets, cell_sets=cell_sets)
+    return hex20_to_hex27(mesh) if mesh.cell_type == "hexahedron20" else mesh
 
 
 @dataclass
@@ -176,7 +142,7 @@ def hex20_to_hex27(mesh: VolumeMesh) -> VolumeMesh:
     n0, nf = len(P), len(faces)
     points = np.concatenate([P, X[:, :6].reshape(-1, 3)[first], X[:, 6]])
     cells = np.column_stack([C, n0 + inverse.reshape(-1, 6), n0 + nf + np.arange(len(C))])
-    sets = {}
+    sets = type(mesh.node_sets)()  # a .inp file's keep their case-insensitive look-up
     for name, nodes in mesh.node_sets.items():
         member = np.zeros(len(points), dtype=bool)
         member[nodes] = True

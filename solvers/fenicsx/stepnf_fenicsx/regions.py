@@ -11,7 +11,7 @@
     ...
 
 The tables are :mod:`stepnf.plugin.materials`' (checked when the scene is read); the
-cell sets are the mesh file's (:func:`stepnf_fenicsx.meshfile.read_cell_sets`:
+cell sets are the mesh file's (:func:`stepnf.geometry.mesh_sets.read_cell_sets`:
 meshio cell sets such as an Abaqus ``*ELSET``, Gmsh physical groups of volume
 cells, MED groups of cells). :func:`assign_materials` gives each cell the
 material of the set naming it, the default to a cell no set names, and refuses

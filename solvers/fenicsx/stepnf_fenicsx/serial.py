@@ -36,6 +36,7 @@ from stepnf.plugin.boundary import BoundaryCondition, FreeDofs
 from stepnf.errors import SceneError
 from stepnf.geometry import ModeLabeler, VolumeMesh, outward_normals
 from stepnf.geometry.rim import cap_for_conditions
+from stepnf.runtime.progress import thousands
 
 from . import _compat
 from ._forms_adapter import FormsAdapter
@@ -284,6 +285,18 @@ class FenicsxAdapter(FormsAdapter):
         fixed = np.zeros(self._free.n_full, dtype=bool)
         fixed[self._free.fixed] = True
         return edge_is_held(self._nodes, self._midsurface_nodes(), fixed, self.geometry["a"], self._R())
+
+    def summary(self) -> str:
+        """The run's first line about the model: ``mesh: 800 hex8 cells, order 2 elements (Q2, the hex8 mesh
+        promoted to order 2), 73 000 dofs`` (a linear mesh gets quadratic elements: :attr:`degree`)."""
+        shape, order, nodes = _compat.CELLS[self.mesh.cell_type]
+        name = f"{ {'hexahedron': 'hex', 'tetrahedron': 'tet'}.get(shape, shape)}{nodes}"
+        completed = " (hex20 in the file, completed to hex27)" if self.mesh.info.get("cells_in_file") else ""
+        promoted = f", the {name} mesh promoted to order {self.degree}" if self.degree > order else ""
+        family = "Q" if shape == "hexahedron" else "P"
+        free = " free" if self.boundary else ""
+        return (f"mesh: {thousands(self.mesh.n_cells)} {name} cells{completed}, order {self.degree} elements "
+                f"({family}{self.degree}{promoted}), {thousands(self.n_dofs)}{free} dofs")
 
     def describe(self) -> dict[str, Any]:
         d = super().describe()

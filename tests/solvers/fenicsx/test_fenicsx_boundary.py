@@ -30,7 +30,7 @@ from stepnf_fenicsx.config import parse_model  # noqa: E402
 from stepnf_fenicsx.meshfile import HEX_FACES  # noqa: E402
 from stepnf_fenicsx.model import Material  # noqa: E402
 from stepnf_fenicsx.shallow_shell import ShallowShellAdapter  # noqa: E402
-from helpers.beam import B, HB, L, NX, beam_mesh, boundary_toml  # noqa: E402
+from helpers.beam import B, HB, L, NX, beam_mesh, beam_scene, boundary_toml  # noqa: E402
 from helpers.paths import EXAMPLES  # noqa: E402
 
 pytestmark = pytest.mark.fenicsx
@@ -147,30 +147,11 @@ def test_clamped_beam_four_routes_and_euler_bernoulli(beam_files):
     assert ref[0] / W_EB - 1 == pytest.approx(0.0041, abs=1e-3)
 
 
-BEAM_SCENE = """\
-[model]
-solver = "fenicsx"
-mesh = "{mesh}"
-[model.material]
-E = 2.1e11
-nu = 0.3
-rho = 7800.0
-{boundary}
-[analysis]
-master_modes = [0]
-methods = ["dnf", "md", "smd"]
-thickness = 0.01
-transverse = "uz"
-{analysis}
-[output]
-dir = "{out}"
-plot = false
-"""
 
 
 def write_scene(folder: Path, name: str, mesh: str, bcs, analysis: str = "", out: str = "out") -> Path:
     path = folder / name
-    path.write_text(BEAM_SCENE.format(mesh=mesh, boundary=boundary_toml(bcs), analysis=analysis, out=out))
+    path.write_text(beam_scene(mesh, bcs, analysis=analysis, out=out))
     return path
 
 

@@ -1,7 +1,9 @@
 """Reading Abaqus/CalculiX ``.inp`` text: lines through ``*INCLUDE``, keyword blocks, nodes, elements, sets.
 
-Shared by the two routes of a user's CalculiX input: a mesh (:mod:`.inpmesh`,
-``mesh = "part.inp"``) and a whole deck (:mod:`.userdeck`, ``deck = "model.inp"``).
+The one ``.inp`` reader of stepnf: both solver routes read a user's ``.inp`` mesh
+with :func:`read_inp_mesh` (the ``mesh`` key of the ``calculix`` and ``fenicsx``
+adapters), and the ``calculix`` adapter reads a whole deck (``deck =
+"model.inp"``, ``stepnf_calculix.userdeck``) on the same blocks.
 
 * :func:`inp_lines` yields every meaningful line (comments ``**`` and blank
   lines skipped) with its file and line number, following ``*INCLUDE,
@@ -12,12 +14,16 @@ Shared by the two routes of a user's CalculiX input: a mesh (:mod:`.inpmesh`,
 * :func:`keyword_blocks` groups them into :class:`Block` s: a keyword line
   (name upper-cased, blanks collapsed: ``*Solid  section`` is ``SOLID
   SECTION``; options ``{NAME: value}`` with upper-case names) and its data lines.
-* :class:`InpModel` collects ``*NODE``, ``*ELEMENT`` (3D solid types only),
-  ``*NSET`` and ``*ELSET`` (ids, names of sets defined before, ``GENERATE``
-  ranges) and gives the mesh (:meth:`InpModel.mesh`): the nodes some element
-  uses, sorted by id, and the named node sets (``*NSET`` s, and the nodes of
-  ``*ELSET`` s without an ``*NSET`` of the same name; names are upper-case and
-  looked up case-insensitively, as ccx does).
+* :class:`InpModel` collects ``*NODE``, ``*ELEMENT`` (3D solid types; with
+  ``facets=True`` also the surface and line elements of :data:`FACET_TYPES`,
+  which a mesher such as Gmsh writes beside the volumes), ``*NSET`` and
+  ``*ELSET`` (ids, names of sets defined before, ``GENERATE`` ranges) and
+  gives the mesh (:meth:`InpModel.mesh`): the nodes some solid element uses,
+  sorted by id, and the named node sets (``*NSET`` s, and the nodes of
+  ``*ELSET`` s without an ``*NSET`` of the same name, facets included; names
+  are upper-case and looked up case-insensitively, as ccx does). Facet
+  elements are no part of the model: only their nodes name sets (for
+  boundary conditions); :attr:`InpMesh.facets` counts them by type.
 
 Every error is a :class:`~stepnf.errors.MeshError` (a SceneError, exit code 2)
 naming the top file and the line (``line 3 of sub.inp, included at line 5``).
@@ -40,6 +46,18 @@ SOLID_TYPES = {"C3D4": 4, "C3D6": 6, "C3D8": 8, "C3D8R": 8, "C3D10": 10, "C3D15"
 #: ccx solid element type -> meshio/VTK cell type of the same node order (for the mesh checks).
 MESHIO_TYPES = {"C3D4": "tetra", "C3D6": "wedge", "C3D8": "hexahedron", "C3D8R": "hexahedron",
                 "C3D10": "tetra10", "C3D15": "wedge15", "C3D20": "hexahedron20", "C3D20R": "hexahedron20"}
+#: Surface and line element types taken as facets of a solid mesh (``facets=True``), with their number of
+#: nodes: Gmsh's ``.inp`` export writes its surface and line elements as CPS*/T3D*; shells, membranes,
+#: plane and axisymmetric elements and beams of a mixed deck are read the same way (sets, not model).
+FACET_TYPES = {**{f"{p}{n}{r}": n for p in ("S", "CPS", "CPE", "CAX", "M3D") for n in (3, 4, 6, 8)
+                  for r in ("", "R")},
+               "S9R5": 9, "STRI3": 3, "STRI65": 6, "S4R5": 4, "CPS9": 9, "CPE9": 9, "M3D9": 9, "M3D9R": 9,
+               "B31": 2, "B31R": 2, "B32": 3, "B32R": 3, "T3D2": 2, "T3D3": 3, "T2D2": 2, "T2D3": 3}
+#: Abaqus variants of the solid types (hybrid ``H``, modified ``M``: another formulation of the same element
+#: geometry; meshio writes its hexahedra as C3D8RH and C3D20RH): read as the base type by the mesh route
+#: (``facets=True``: the file gives the geometry, stepnf the formulation), refused in a deck.
+VARIANTS = {"C3D4H": "C3D4", "C3D6H": "C3D6", "C3D8H": "C3D8", "C3D8RH": "C3D8R", "C3D10H": "C3D10", "C3D10M": "C3D10",
+            "C3D10MH": "C3D10", "C3D15H": "C3D15", "C3D20H": "C3D20", "C3D20RH": "C3D20R"}
 #: Solid types refused, and why.
 REFUSED_TYPES = {"C3D8I": "ccx adds internal incompatible-mode dofs to each C3D8I element, which stepnf can "
                           "neither prescribe nor expose (use C3D8 or C3D20)"}
@@ -204,15 +222,24 @@ class InpMesh:
     blocks: list[tuple[str, np.ndarray, np.ndarray]]
     node_sets: dict[str, np.ndarray] = field(default_factory=dict)
     element_sets: dict[str, list[int]] = field(default_factory=dict)
+    #: facet elements read beside the solids (``{type: count}``, :data:`FACET_TYPES`): sets only, no model
+    facets: dict[str, int] = field(default_factory=dict)
+    #: element types of the file read as another (``{file's type: type read}``, :data:`VARIANTS`)
+    renamed: dict[str, str] = field(default_factory=dict)
 
 
 class InpModel:
-    """The nodes, solid elements and sets of ``.inp`` blocks (see the module docstring)."""
+    """The nodes, solid elements and sets of ``.inp`` blocks (see the module docstring); ``facets``: take the
+    elements of :data:`FACET_TYPES` as facets (their nodes name sets) instead of refusing them."""
 
-    def __init__(self, top: Path):
+    def __init__(self, top: Path, *, facets: bool = False):
         self.top = Path(top)
+        self.take_facets = facets
         self.nodes: dict[int, list[float]] = {}
         self.elements: dict[str, list[list[int]]] = {}
+        self.facets: dict[str, list[list[int]]] = {}
+        self.facet_heads: dict[str, Line] = {}  # the first *ELEMENT line of each facet type
+        self.renamed: dict[str, str] = {}  # variants read as their base type (:data:`VARIANTS`)
         self.element_lines: dict[int, Line] = {}
         self.nsets: dict[str, list[int]] = {}
         self.elsets: dict[str, list[int]] = {}
@@ -250,12 +277,18 @@ class InpModel:
 
     def _elements(self, block: Block) -> None:
         etype = block.options.get("TYPE", "").upper()
+        if self.take_facets and etype in VARIANTS:
+            self.renamed[etype], etype = VARIANTS[etype], VARIANTS[etype]
         if etype in REFUSED_TYPES:
             raise self.error(block.head, f"element type {etype!r} is not supported: {REFUSED_TYPES[etype]}")
-        if etype not in SOLID_TYPES:
+        facet = self.take_facets and etype in FACET_TYPES
+        if etype not in SOLID_TYPES and not facet:
             raise self.error(block.head, f"element type {etype!r} is not supported (3D solid elements only: no "
                                          f"shell, beam, truss or spring elements). Pick one of {sorted(SOLID_TYPES)}")
-        rows = self.elements.setdefault(etype, [])
+        n_nodes = FACET_TYPES[etype] if facet else SOLID_TYPES[etype]
+        rows = (self.facets if facet else self.elements).setdefault(etype, [])
+        if facet:
+            self.facet_heads.setdefault(etype, block.head)
         ids = []
         pending: list[Line] = []
         for line in block.data:
@@ -266,8 +299,8 @@ class InpModel:
                 vals = [int(t) for t in " ".join(p.text for p in pending).replace(",", " ").split()]
             except ValueError as exc:
                 raise self.error(pending[0], f"expected integer element and node ids ({exc})") from None
-            if len(vals) != SOLID_TYPES[etype] + 1:
-                raise self.error(pending[0], f"a {etype} element needs {SOLID_TYPES[etype]} nodes, got "
+            if len(vals) != n_nodes + 1:
+                raise self.error(pending[0], f"a {etype} element needs {n_nodes} nodes, got "
                                              f"{len(vals) - 1}")
             rows.append(vals)
             ids.append(vals[0])
@@ -311,6 +344,11 @@ class InpModel:
         """The checked mesh (:func:`stepnf.geometry.checks.check_volume_mesh`) and its named node sets."""
         blocks = {t: rows for t, rows in self.elements.items() if rows}
         if not blocks:
+            only = [t for t, r in self.facets.items() if r]
+            if only:  # a shell or beam model: refused as without facets, at its first element block
+                raise self.error(self.facet_heads[only[0]], f"element type {only[0]!r} is not supported (3D solid "
+                                 "elements only: surface and line elements are taken, as sets of nodes, only beside "
+                                 f"solid ones). Pick one of {sorted(SOLID_TYPES)}")
             raise self.error(None, f"no elements: no *ELEMENT block of a solid type {sorted(SOLID_TYPES)} with "
                                    "elements in it")
         if not self.nodes:
@@ -334,11 +372,15 @@ class InpModel:
         check_volume_mesh(pts, [(MESHIO_TYPES[t], np.searchsorted(used, c)) for t, _, c in out_blocks],
                           source=self.top, node_ids=used, cell_ids=[e for _, e, _ in out_blocks],
                           cell_labels=[f"{t} element" for t, _, _ in out_blocks])
-        return InpMesh(used, pts, out_blocks, self.node_sets(used, out_blocks), dict(self.elsets))
+        facets = [(t, np.array(r, dtype=np.int64)) for t, r in self.facets.items() if r]
+        facet_blocks = [(t, a[:, 0], a[:, 1:]) for t, a in facets]
+        return InpMesh(used, pts, out_blocks, self.node_sets(used, out_blocks + facet_blocks), dict(self.elsets),
+                       {t: int(len(a)) for t, a in facets}, dict(self.renamed))
 
     def node_sets(self, used: np.ndarray, blocks: list[tuple[str, np.ndarray, np.ndarray]]) -> SetNames:
-        """``{NAME: positions in used}``: the used nodes of every *NSET, and of the elements of every *ELSET
-        that no *NSET names (ids that are no used node carry no dof and are left out)."""
+        """``{NAME: positions in used}``: the used nodes of every *NSET, and of the elements (``blocks``: solids
+        and facets) of every *ELSET that no *NSET names (ids that are no used node carry no dof and are left
+        out)."""
         out = SetNames()
         for name, ids in self.nsets.items():
             ids = np.asarray(ids, dtype=np.int64)
@@ -349,3 +391,36 @@ class InpModel:
                 nodes = np.concatenate([c[np.isin(e, m)].ravel() for _, e, c in blocks])
                 out[name] = np.flatnonzero(np.isin(used, nodes))
         return out
+
+
+def read_inp_mesh(path: str | Path, *, facets: bool = True) -> InpMesh:
+    """The solid mesh of the ``.inp`` file ``path`` (the ``mesh`` key of both solver routes).
+
+    Only the mesh and its named sets are taken: every ``*NODE`` line, every ``*ELEMENT`` block of a solid
+    type (``C3D*``), the ``*NSET`` and ``*ELSET`` sets, and (``facets``) the surface and line elements of
+    :data:`FACET_TYPES` as sets of nodes (:attr:`InpMesh.facets` counts them: the caller says so), the Abaqus
+    variants of :data:`VARIANTS` as their base type;
+    materials, sections, boundary conditions and steps are ignored. ``*INCLUDE`` is followed (relative to
+    the file's folder); continuation lines of ``*ELEMENT`` (a line ending with a comma) are joined; nodes
+    that no solid element uses are dropped (they would carry no stiffness). The nodes and elements found
+    are checked by :func:`stepnf.geometry.checks.check_volume_mesh` (NaN coordinates, undefined nodes,
+    flat meshes, coincident nodes, degenerate, tangled or overlapping elements). Raises
+    :class:`~stepnf.errors.MeshError` (a ``ValueError``) naming the file, the line, or the element or
+    node (the file's ids) at fault.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(path, f"mesh file {path} does not exist")
+    model = InpModel(path, facets=facets)
+    for block in keyword_blocks(inp_lines(path)):
+        model.add(block)
+    return model.mesh()
+
+
+def facets_note(mesh: InpMesh, source: str | Path) -> str:
+    """One line saying what :func:`read_inp_mesh` did with the facet elements of ``mesh`` ('' when none)."""
+    if not mesh.facets:
+        return ""
+    what = ", ".join(f"{n} {t}" for t, n in mesh.facets.items())
+    return (f"{source}: {what} surface/line element(s) beside the solids are no part of the model (ignored); "
+            "their named sets (*ELSET, Gmsh physical group) name node sets, usable in [[model.boundary]]")
