@@ -59,6 +59,8 @@ class Factorization:
         self.label = label
         self._petsc = resources
         self._on_release = on_release
+        #: why solves raise now (:meth:`disable`), or None while the factors are usable
+        self.disabled: str | None = None
 
     def solve(self, b: np.ndarray, *, count: bool = True) -> np.ndarray:
         b = np.asarray(b, dtype=float)
@@ -95,6 +97,7 @@ class Factorization:
     def disable(self, why: str) -> None:
         """Make every later solve raise ``RuntimeError`` ("the factorisation of <label> <why>"); frees nothing."""
         message = f"the factorisation of {self.label or 'a matrix'} {why}"
+        self.disabled = why
 
         def disabled(b: np.ndarray) -> np.ndarray:
             raise RuntimeError(message)

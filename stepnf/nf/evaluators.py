@@ -67,9 +67,9 @@ from stepnf import methods
 
 @dataclass(frozen=True)
 class Rounding:
-    """What :func:`dnf` needs to bound T's rounding (:mod:`stepnf.nf.roundoff`): the STEP amplitude ``q``
-    (modal), ``H(phi_p, phi_p, phi_p)`` (n,) or None, and the solver's printed force digits (None: full
-    double precision)."""
+    """What the full-order evaluators (:func:`dnf`, :func:`smd_full`, :func:`md_full`) need to bound T's
+    rounding (:mod:`stepnf.nf.roundoff`): the STEP amplitude ``q`` (modal), ``H(phi_p, phi_p, phi_p)`` (n,)
+    or None, and the solver's printed force digits (None: full double precision)."""
 
     q: float
     Hv: np.ndarray | None = None

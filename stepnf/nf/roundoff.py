@@ -49,8 +49,8 @@ def printed_rounding(digits: int | None) -> float:
 
 
 #: a printed force's rounding is bounded by this many standard deviations of the sum of the entries'
-#: independent roundings (uniform in +-eps_f |f_i|: variance (eps_f |f_i|)^2 / 3); 5 sigma: exceeded with a
-#: probability below 1e-6 (Chebyshev-free: the sum of many independent bounded terms is near Gaussian)
+#: independent roundings (uniform in +-eps_f |f_i|: variance (eps_f |f_i|)^2 / 3); the sum of many independent
+#: bounded terms is near Gaussian, which exceeds 5 sigma with a probability of 6e-7
 PRINTED_SIGMAS = 5.0
 
 
@@ -71,8 +71,7 @@ def dnf_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.nda
     H(phi, phi, phi) (n,; ``Hv`` None: the cubic force is left out of ``|f|``), ``y``, ``z`` DNF's two
     solutions, ``digits`` the solver's printed force digits (None: full double precision).
     Returns ``(dT / |T|, parts)`` with ``parts`` = ``dh``, ``dA``, ``dB``, ``dT`` (absolute, the
-    model's units) and ``cancellation`` = ``(3 (|A| + |h|) + w^2 |B|) / |3 (A + h) + w^2 B|``
-    (filled by the caller). ``inf`` when T is 0 with a non-zero bound.
+    model's units); ``inf`` when T is 0 with a non-zero bound.
     """
     w2 = omega_p ** 2
     aphi, ay, az = np.abs(phi), np.abs(y), np.abs(z)

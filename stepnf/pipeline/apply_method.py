@@ -6,8 +6,8 @@ import numpy as np
 from stepnf.nf.coefficient import MethodResult
 from stepnf.nf.diagnostics import captured_share, floor_scale, merge_flags, one_two_flags, t_error, truncation_flags
 from stepnf.flags import new_flag
-from stepnf.nf.evaluators import (Rounding, Tolerances, dnf, dnf_uses_factorisation, md_full, resonance_flags, retained_set,
-                                   smd_full)
+from stepnf.nf.evaluators import (Rounding, Tolerances, dnf, dnf_uses_factorisation, md_full, resonance_flags,
+                                   retained_set, smd_full)
 from stepnf.methods import DNF, MD, MD_FULL, MODAL_EVALUATORS, SMD_FULL, method
 from stepnf.nf.linearised import Spectrum
 from stepnf.pipeline.context import full_order_context

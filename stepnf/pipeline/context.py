@@ -5,11 +5,13 @@ import time
 from typing import Callable
 
 import numpy as np
+import scipy.sparse as sp
 
 from stepnf.runtime.counters import Counters
 from stepnf.linalg.deflation import DeflatedSolver
 from stepnf.nf.evaluators import FullOrderContext
-from stepnf.linalg.factorization import Factorization, PseudoInverse, adapter_factorization, apply_columns
+from stepnf.linalg.factorization import (Factorization, PseudoInverse, adapter_factorization, apply_columns,
+                                         factorize)
 from stepnf.linalg.modal_analysis import lambda_scale
 from stepnf.pipeline.state import StageView
 
@@ -42,6 +44,26 @@ class DeflatedPinv:
         return self.solver.pinv(b)
 
 
+class EigenPreconditioner:
+    """The eigen-solver's factors as the deflated solves' preconditioner; once they are released (the
+    evaluators stage frees them before the DNF factorisations that run last, :mod:`stepnf.pipeline.evaluate`),
+    a factorisation of ``K - sigma M`` of its own, made on first use: a slender master's DNF solves again
+    after that (:mod:`stepnf.pipeline.slender_dnf`). Takes (n,) or (n, k) right-hand sides."""
+
+    def __init__(self, F0: Factorization, state: StageView):
+        self.F0, self.state, self.own = F0, state, None
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        if self.F0.disabled is None:
+            return self.F0.solve(b, count=False)
+        if self.own is None:
+            st = self.state
+            A = sp.csr_matrix(st.K) + 1e-10 * lambda_scale(st.K, st.M) * sp.csr_matrix(st.M)
+            self.own = factorize(A, counters=st.counters, backend=st.backend,
+                                 label="K - sigma M (the deflated solves' preconditioner, after the eigen-solver's)")
+        return self.own.solve(b, count=False)
+
+
 def deflation_preconditioner(state: StageView, shift_solver: Callable | None) -> Callable | None:
     """A solve with K (or K slightly shifted) that a :class:`DeflatedSolver` can use, or None; it takes
     (n,) or (n, k) right-hand sides (the eigen-solver's factors solve k columns in one call).
@@ -53,8 +75,7 @@ def deflation_preconditioner(state: StageView, shift_solver: Callable | None) ->
     """
     basis, scene = state.basis, state.scene
     if basis.factorization is not None and shift_solver is None and scene.deflation:
-        F0 = basis.factorization
-        return lambda b: F0.solve(b, count=False)
+        return EigenPreconditioner(basis.factorization, state)
     if shift_solver is not None and scene.deflation and basis.n_elastic and not basis.complete:
         raw = timed_factorisation(state.counters, lambda: shift_solver(-1e-10 * lambda_scale(state.K, state.M)))
         return lambda b: apply_columns(raw, b)  # a block in one call only if the solve takes_columns

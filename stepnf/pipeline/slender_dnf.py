@@ -113,7 +113,7 @@ def probed_dnf(state: StageView, d: MasterData, r: MethodResult, y: np.ndarray, 
     s, digits = st.q, getattr(state.adapter, "force_digits", None)
     with state.progress.stage("step_manifold", f"STEP along the quadratic manifold for mode {d.p} "
                                                f"({2 * len(FRACTIONS)} force evaluations)"):
-        pr = manifold_probe(state.model.forces, state.K, d.phi, y, s, digits, plan=f"manifold{d.p}")
+        pr = manifold_probe(state.model.forces, d.phi, y, s, digits, plan=f"manifold{d.p}")
     dh_y, dB = input_errors(state, d, st, r, pr.h_s, digits, rerun)
     r2 = dnf_condensed(state.omega[d.p], pr.h_s, pr.dh_s + dh_y, r, dB=dB)
     r2.extra.update(probe_amplitude=pr.s, probe_standard_error=pr.standard_error, probe_dh_s_forces=pr.dh_s,
@@ -142,7 +142,7 @@ def input_errors(state: StageView, d: MasterData, st: MasterStep, r: MethodResul
         r_chk, y_chk = rerun(chk)
         with state.progress.stage("step_manifold_check", f"STEP along the quadratic manifold for mode {d.p}, "
                                                          "y from the check amplitude"):
-            again = manifold_probe(state.model.forces, state.K, d.phi, y_chk, st.q, digits,
+            again = manifold_probe(state.model.forces, d.phi, y_chk, st.q, digits,
                                    plan=f"manifold{d.p}c")
         return abs(again.h_s - h_s), abs(float(r_chk.extra["B"]) - B)
     from stepnf.pipeline.context import full_order_context

@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from stepnf.nf.roundoff import printed_rounding, weighted_rounding
 from stepnf.step.forces import ForceEvaluator
@@ -54,7 +53,7 @@ class ManifoldProbe:
     s: float
 
 
-def manifold_probe(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, y: np.ndarray, s: float,
+def manifold_probe(forces: ForceEvaluator, phi: np.ndarray, y: np.ndarray, s: float,
                    digits: int | None, plan: str | None) -> ManifoldProbe:
     """``h_s`` of master ``phi`` (mass-normalised) from forces along ``u = t phi - t^2 y``, ``t = +-s 2^(-k/2)``
     (module docstring); ``digits``: the solver's printed force digits (None: double precision)."""

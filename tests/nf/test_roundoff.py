@@ -76,10 +76,9 @@ def test_the_manifold_probe_removes_the_cancellation_of_printed_forces():
     errors of the least-squares fit and the printing of f1's linear part, 5e-7 t, over eps_b t^3 at t down to
     s/11, 5 standard deviations through the fit's weights), where the STEP at +-s phi is off by 100% and
     more (test above)."""
-    ctx, K = context()
     phi = np.array([1.0, 0.0])
     first, y = dnf_at(50.0, 7)
-    pr = manifold_probe(ForceEvaluator(forces_of(7), 2, Counters()), K, phi, y, 50.0, 7, plan=None)
+    pr = manifold_probe(ForceEvaluator(forces_of(7), 2, Counters()), phi, y, 50.0, 7, plan=None)
     assert abs(pr.h_s - EPS_B) <= pr.dh_s and pr.dh_s < 0.2 * EPS_B
     r = dnf_condensed(1.0, pr.h_s, pr.dh_s, first)
     assert abs(r.T / T_EXACT - 1) <= r.T_error < 0.2
