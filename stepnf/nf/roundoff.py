@@ -62,6 +62,15 @@ def weighted_rounding(weights: np.ndarray, solver: np.ndarray, printed: np.ndarr
     return float(w @ solver) + PRINTED_SIGMAS * float(np.sqrt(np.sum((w * printed) ** 2) / 3.0))
 
 
+def step_rounding(kp: np.ndarray, K: sp.spmatrix, phi: np.ndarray, q: float, Gv: np.ndarray,
+                  Hv: np.ndarray | None, digits: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-entry bounds of the rounding of ``f(+-q phi)`` (module docstring): the solver's own,
+    ``eps q (|K| |phi|)_i`` (``kp = |K| |phi|``, (n,)), and the printed, ``eps_f |f_i|`` with ``f`` the
+    force at ``q phi`` rebuilt from K, ``Gv`` and ``Hv`` (None: the cubic force left out)."""
+    f = q * (K @ phi) + q * q * Gv + (q ** 3 * Hv if Hv is not None else 0.0)
+    return EPS * q * kp, printed_rounding(digits) * np.abs(f)
+
+
 def dnf_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.ndarray, Hv: np.ndarray | None,
                  y: np.ndarray, z: np.ndarray, K: sp.spmatrix, M: sp.spmatrix,
                  digits: int | None) -> tuple[float, dict]:
@@ -76,8 +85,7 @@ def dnf_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.nda
     w2 = omega_p ** 2
     aphi, ay, az = np.abs(phi), np.abs(y), np.abs(z)
     kp, ky, kz = abs_product(K, np.column_stack([aphi, ay, az])).T
-    f = q * (K @ phi) + q * q * Gv + (q ** 3 * Hv if Hv is not None else 0.0)
-    own, printed = EPS * q * kp, printed_rounding(digits) * np.abs(f)
+    own, printed = step_rounding(kp, K, phi, q, Gv, Hv, digits)
     dh = weighted_rounding(aphi, own, printed) / q ** 3
     dA = 2.0 * weighted_rounding(y + z, own, printed) / q ** 2 + EPS * (float(ay @ ky) + float(az @ kz))
     gn = float(np.linalg.norm(Gv))
@@ -96,8 +104,7 @@ def qm_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.ndar
     w2 = omega_p ** 2
     aphi, ath = np.abs(phi), np.abs(theta)
     kp, kt = abs_product(K, np.column_stack([aphi, ath])).T
-    f = q * (K @ phi) + q * q * Gv + (q ** 3 * Hv if Hv is not None else 0.0)
-    own, printed = EPS * q * kp, printed_rounding(digits) * np.abs(f)
+    own, printed = step_rounding(kp, K, phi, q, Gv, Hv, digits)
     dC4 = (weighted_rounding(aphi, own, printed) / q ** 3 + 2.0 * weighted_rounding(ath, own, printed) / q ** 2
            + EPS * float(ath @ kt))
     dT = 3.0 * dC4 / (8.0 * w2)

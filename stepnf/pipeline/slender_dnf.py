@@ -32,7 +32,7 @@ import numpy as np
 from stepnf.flags import new_flag
 from stepnf.nf.coefficient import MethodResult
 from stepnf.nf.condensed import dnf_condensed
-from stepnf.nf.roundoff import EPS, printed_rounding
+from stepnf.nf.roundoff import step_rounding
 from stepnf.linalg.null_space import abs_product
 from stepnf.pipeline.master import MasterData
 from stepnf.pipeline.state import StageView
@@ -114,7 +114,7 @@ def probed_dnf(state: StageView, d: MasterData, r: MethodResult, y: np.ndarray, 
     with state.progress.stage("step_manifold", f"STEP along the quadratic manifold for mode {d.p} "
                                                f"({2 * len(FRACTIONS)} force evaluations)"):
         pr = manifold_probe(state.model.forces, d.phi, y, s, digits, plan=f"manifold{d.p}")
-    dh_y, dB = input_errors(state, d, st, r, pr.h_s, digits, rerun)
+    dh_y, dB = input_errors(state, d, st, r, y, pr.h_s, digits, rerun)
     r2 = dnf_condensed(state.omega[d.p], pr.h_s, pr.dh_s + dh_y, r, dB=dB)
     r2.extra.update(probe_amplitude=pr.s, probe_standard_error=pr.standard_error, probe_dh_s_forces=pr.dh_s,
                     probe_dh_s_y=dh_y)
@@ -128,9 +128,10 @@ def probed_dnf(state: StageView, d: MasterData, r: MethodResult, y: np.ndarray, 
     return keep
 
 
-def input_errors(state: StageView, d: MasterData, st: MasterStep, r: MethodResult, h_s: float,
+def input_errors(state: StageView, d: MasterData, st: MasterStep, r: MethodResult, y: np.ndarray, h_s: float,
                  digits: int | None, rerun: Rerun) -> tuple[float, float]:
-    """What the errors of ``y`` and ``B`` (from the STEP ``st``, DNF ``r``) cost the probe: ``(dh_s, dB)``,
+    """What the errors of ``y`` and ``B`` (from the STEP ``st``, DNF ``r``: ``y = K^+ G(phi, phi)`` of it) cost
+    the probe: ``(dh_s, dB)``,
     absolute. The probe is stationary in ``y`` (``2 e^T K e``, ``e`` the error of ``y``); ``B = 4 y^T M z``
     is not. Measured with a check amplitude: DNF and the probe again from its ``G``, which carries twice
     the rounding (so the differences are about three times the errors sought). Without one: ``e = K^+ r``
@@ -148,9 +149,7 @@ def input_errors(state: StageView, d: MasterData, st: MasterStep, r: MethodResul
     from stepnf.pipeline.context import full_order_context
 
     K, phi, q = state.K, d.phi, st.q
-    f = q * (K @ phi) + q * q * st.Gv
-    bound = (EPS * q * abs_product(K, np.abs(phi))[:, 0] + printed_rounding(digits) * np.abs(f)) / q ** 2
-    noise = np.random.default_rng(0).choice((-1.0, 1.0), size=len(phi)) * bound
+    own, printed = step_rounding(abs_product(K, np.abs(phi))[:, 0], K, phi, q, st.Gv, None, digits)
+    noise = np.random.default_rng(0).choice((-1.0, 1.0), size=len(phi)) * (own + printed) / q ** 2
     e = full_order_context(state).Kpinv(noise)
-    y = full_order_context(state).Kpinv(st.Gv)
     return 5.0 * 2.0 * abs(float(noise @ e)), 5.0 * 8.0 * float(np.abs(e) @ abs_product(state.M, np.abs(y))[:, 0])
