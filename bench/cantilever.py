@@ -34,7 +34,12 @@ t = ``t_roundoff`` flag.
 Measured (working tree of 2026-12-06, bench/results/cantilever*.json): fenicsx, both meshes, L/h = 100-1000,
 both modes within 2.4% (refined along the length, nx = 160/200, within 1.3%); L/h = 30 mode 1 -7.6..-8.2%
 at every mesh (a model limit of the Euler-Bernoulli reference: it falls as (h/L)^2, -0.55% at L/h = 100
-converged); tet10 at L/h = 1000 refused on both routes (lowest/largest eigenvalue 4e-15); calculix mode 1
+converged). The reference at L/h = 30 is the model's own periodic orbits (``stepnf verify``, rtol 1e-8,
+W_max/h = 1 and 2, tests/pipeline/test_slender_reference.py): their slope (w_NL/w - 1)/a^2 is 1.10632
+(hex20 nx = 40; T = 1.10622) and 1.10251 (tet10 nx = 40; T = 1.10236), 1e-4 from T: stepnf's T is the
+model's, and mode 1's c1 = 0.019, a 15-fold cancellation of curvature stiffening against axial inertia,
+shows the solid's O((h/L)^2) departures from thin-beam theory (shear, rotary inertia, the section) ~15
+times enlarged; tet10 at L/h = 1000 refused on both routes (lowest/largest eigenvalue 4e-15); calculix mode 1
 n/a from L/h = 300, both modes at 1000. The plate deck as brought (15 elements, nu = 0.3, b = 30h) is far
 from the beam theory for the model's own reasons (``--refine``: nx = 60 and nu = 0 bring it to 3%).
 

@@ -2,7 +2,8 @@
 # Set up everything stepnf needs on Debian 12 or 13, idempotently: Debian packages
 # (FEniCSx, CalculiX where Debian has it, numpy/scipy/h5py built against them), then
 # a virtual environment .venv that sees them (--system-site-packages) with stepnf and
-# its solver adapters installed in editable mode. Fast when already done.
+# its solver adapters installed in editable mode, and Kratos Multiphysics 10.4.4 (pinned PyPI wheels,
+# Python 3.11: Debian 12) for the kratos shell adapter. Fast when already done.
 # Debian 12 gives FEniCSx 0.5 and CalculiX 2.20 (calculix-ccx: a set-up that cannot install it
 # fails, naming it); Debian 13 gives FEniCSx 0.9 and no calculix-ccx package: there the
 # calculix adapter needs a ccx program on PATH.
@@ -134,6 +135,31 @@ if [ "$(cat .venv/.stepnf-stamp 2>/dev/null)" != "$stamp" ]; then
   .venv/bin/python -m pip install -q --no-deps --no-build-isolation --disable-pip-version-check "${args[@]}"
   .venv/bin/python -m pip uninstall -y -q h5py 2>/dev/null || true  # a stray PyPI h5py from older set-ups
   echo "$stamp" > .venv/.stepnf-stamp
+fi
+# Kratos Multiphysics, the shells of the kratos adapter (solvers/kratos; BSD-4-Clause, a separate
+# dependency, never vendored): pinned cp311 wheels from PyPI, --no-deps so that they import beside
+# Debian's numpy and scipy (stepnf solves, so the LinearSolversApplication they list is not needed).
+# Asked of pip only when the installed versions differ. Wheels exist for Python 3.11 only (Debian 12).
+kratos_version=10.4.4
+kratos_dists=(KratosMultiphysics KratosStructuralMechanicsApplication)
+kratos_have="$(.venv/bin/python -c 'import sys
+from importlib import metadata
+for d in sys.argv[1:]:
+    try:
+        print(metadata.version(d))
+    except metadata.PackageNotFoundError:
+        print("none")' "${kratos_dists[@]}")"
+kratos_want="$(printf '%s\n' "$kratos_version" "$kratos_version")"
+py_tag="$(.venv/bin/python -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')"
+if [ "$kratos_have" != "$kratos_want" ]; then
+  if [ "$py_tag" = 3.11 ]; then
+    echo "setup: installing Kratos Multiphysics $kratos_version (PyPI wheels) for the kratos adapter"
+    .venv/bin/python -m pip install -q --no-deps --disable-pip-version-check \
+      "${kratos_dists[@]/%/==$kratos_version}"
+  else
+    echo "setup: Kratos Multiphysics $kratos_version has wheels for Python 3.11 only, this venv runs $py_tag:" \
+      "the kratos adapter is installed without its solver (its tests are skipped here)" >&2
+  fi
 fi
 # FEniCSx form compilation cache inside the project
 mkdir -p .cache

@@ -80,14 +80,29 @@ _KINDS = (
                   "the nonlinear forces (the calculix adapter's .dat forces carry 7). Try a larger [analysis.step] "
                   "relative_amplitude (a multiple of the thickness or characteristic length: e.g. 5, then 20; the "
                   "two amplitudes should agree), or [analysis.step] method = \"tangent\" where the solver offers "
-                  "tangent stiffnesses (calculix does)"),
+                  "tangent stiffnesses (calculix does). A force that is not an exact cubic (a shell's) changes the "
+                  "other way, as amplitude^2: then a smaller amplitude (see step_unconverged)"),
     FlagKind("t_roundoff", "line", t_na="value",
-             template="rounding of the forces and the solves leaves T an error of up to x (relative): its terms "
-                      "cancel (a slender structure)",
-             hint="T is a small difference of large terms here (a slender structure) and the forces' rounding "
-                  "reaches its digits. The bound falls as 1/amplitude^2: set a larger [analysis.step] "
-                  "relative_amplitude (e.g. 20, then 100; a solid model's force is an exact cubic, a large "
-                  "amplitude costs nothing), or leave both amplitude keys out and stepnf raises it itself"),
+             template="rounding leaves T an error of up to x (relative): the forces' rounding and the solves "
+                      "through the cancellation of T's terms (a slender structure), and the master's own eigenvalue "
+                      "error through T's slope in it (stepnf.nf.roundoff.roundoff_message says which)",
+             hint="T is a small difference of large terms here (a slender structure). The part from the forces' "
+                  "rounding falls as 1/amplitude^2: set a larger [analysis.step] relative_amplitude (e.g. 20, then "
+                  "100; a solid model's force is an exact cubic, a large amplitude costs nothing), or leave both "
+                  "amplitude keys out and stepnf raises it itself. The part from the mode's own eigenvalue (the "
+                  "message names it) no amplitude reduces: it is the conditioning of K in double precision; a "
+                  "better-conditioned mesh of the same structure (bricks rather than tetrahedra, fewer elements "
+                  "through the thickness) or a shell model reduces it"),
+    FlagKind("step_extrapolated", "line", names_mode=True,
+             template="STEP of mode p: the force is not an exact cubic (G, h change as q^rate over three "
+                       "amplitudes): the values kept are Richardson extrapolations of the cubic fit"),
+    FlagKind("step_unconverged", "line", names_mode=True,
+             template="STEP's cubic fit of mode p is not converged: G or h changes at a rate that is not the cubic "
+                      "fit's q^2, or keeps an error x above the tolerance after extrapolation"),
+    FlagKind("non_conservative", "line",
+             template="master mode p: the internal force is not the gradient of an energy: phi_p.G(phi_p, y) and "
+                      "y.G(phi_p, phi_p) differ by x (relative; y the static condensation of G(phi_p, phi_p)): nf, "
+                      "dnf, md, smd take them equal, the DPIM does not (stepnf.pipeline.conservative)"),
     FlagKind("step_amplitude_raised", "line",
              template="rounding left T too few digits: STEP again at k x the amplitude, the better T kept"),
     FlagKind("manifold_probe", "line",
@@ -99,7 +114,12 @@ _KINDS = (
     FlagKind("rigid_mode_driven", "line", t_na="always", backbone_invalid=True,
              backbone_reason="no periodic orbit (a rigid mode is driven)",
              template="master mode p drives the zero-frequency mode r: its motion drifts, no periodic orbit"),
-    FlagKind("ill_conditioned", "note", template="the lowest elastic eigenvalue is x times the largest"),
+    FlagKind("ill_conditioned", "note",
+             template="a mode's eigenvalue is resolved only to x (relative: eps |phi|^T |K| |phi| / lambda, or its "
+                      "distance to its vector's Rayleigh quotient)"),
+    FlagKind("unresolved_mode", "line", t_na="always", backbone_invalid=True, names_mode=True,
+             backbone_reason="the master's eigenvalue is not resolved in double precision",
+             template="master mode p's eigenvalue is resolved only to x (beyond 1%): T is n/a"),
     FlagKind("soft_modes_counted_rigid", "note", template="modes counted as rigid may be soft elastic modes"),
     FlagKind("fewer_modes", "note", template="only n elastic modes available for the modal sums"),
     FlagKind("no_gamma", "note", template="why Gamma is not given"),
@@ -211,9 +231,8 @@ def t_unusable(r: Any) -> tuple[str, str] | None:
         v = _value(f) if f.get("kind") == "t_roundoff" else None
         if v is not None and v >= STEP_UNUSABLE:
             size = f"up to {100 * v:.3g}%" if math.isfinite(v) else "larger than T itself (T = 0 within it)"
-            return ("t_roundoff", f"rounding of the forces and the solves leaves T an error {size} (its terms "
-                                  "cancel, or every term is below the forces' rounding): not even its sign is "
-                                  "established")
+            return ("t_roundoff", f"rounding leaves T an error {size}: not even its sign is established"
+                                  + (f" ({f['message']})" if f.get("message") else ""))
     err = r.T_error
     if err is None:
         values = [_value(f) for f in flags if f.get("kind") == "step_accuracy" and f.get("mode") is None]

@@ -363,7 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                           "orbits of the full model (shooting, or time integration for large models)")
     p_vf.add_argument("scene", help="scene file (TOML) with an [analysis.backbone] table")
     p_vf.add_argument("--amplitudes", nargs="+", type=float, metavar="A",
-                      help="amplitudes of the master coordinate q = phi^T M x (default: 3 up to the validity limit)")
+                      help="amplitudes of the master coordinate q = phi^T M x (default: 3 up to the validity limit, "
+                           "capped at W_max/h = 2 when [analysis] thickness is set)")
     p_vf.add_argument("--periods", type=float, default=3.0, help="periods integrated (large models; default 3)")
     p_vf.add_argument("--tangent", choices=("auto", "modified", "tangent", "differences"), default="auto",
                       help="the time integration's Newton: modified (K only, then a secant iteration on K), tangent "

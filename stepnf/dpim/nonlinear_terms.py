@@ -52,6 +52,7 @@ import numpy as np
 
 from stepnf.linalg.block_product import block_product
 from stepnf.dpim.polarisation import ForceBatch, PolarisationStats, checked_probe, probe_forces
+from stepnf.plugin.dofs import MAX_ROTATION, peak as dof_peak
 
 #: A probe direction ``sum_i coef_i u_{q_i}``: ``((q, coef), ...)`` sorted by q, the first coefficient +1.
 Direction = tuple[tuple[int, int], ...]
@@ -133,11 +134,15 @@ class OrderForcing:
     ``forces(U)``: internal forces (m, n) of the fields ``U`` (m, n), model units; ``K``: linear
     stiffness (n, n); ``probe``: the largest displacement of each probe field (model length units);
     ``order``: the DPIM's odd order N (fixes what is kept); ``nodes``: ``(theta (J,), {parity: (harmonics,
-    B (J, J))})`` of :func:`stepnf.dpim.parametrisation.shared_nodes` for that order.
+    B (J, J))})`` of :func:`stepnf.dpim.parametrisation.shared_nodes` for that order. ``rotations`` (bool (n,),
+    or ``None``): a shell's rotation dofs (radians): ``probe`` then bounds the largest translation, and the
+    largest rotation of each probe field is at most :data:`~stepnf.plugin.dofs.MAX_ROTATION`, as in STEP.
     """
 
-    def __init__(self, forces: ForceBatch, K: Any, probe: float, order: int, nodes: tuple[np.ndarray, dict]):
+    def __init__(self, forces: ForceBatch, K: Any, probe: float, order: int, nodes: tuple[np.ndarray, dict],
+                 rotations: np.ndarray | None = None):
         self.forces, self.K, self.probe, self.order = forces, K, checked_probe(probe), int(order)
+        self.rotations = None if rotations is None or not np.any(rotations) else np.asarray(rotations, dtype=bool)
         self.theta, self.bases = nodes  # (J,), {parity: (harmonics, B (J, J))}
         self._K_block = block_product(K)
         self.stats = PolarisationStats()
@@ -183,6 +188,18 @@ class OrderForcing:
         inv = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 0.0)[:, None]
         self._units[q] = (norms, W * inv, KW * inv)
 
+    def _peak(self, z: np.ndarray) -> float:
+        """The size of a probe direction the probe scales to: its largest entry, or with rotation dofs the
+        larger of its largest translation and its largest rotation times ``probe / MAX_ROTATION``.
+
+        The rule of :func:`stepnf.plugin.dofs.bounded_scale` (``probe / size`` = the smaller of
+        ``probe / max|z_t|`` and ``MAX_ROTATION / max|z_r|``), kept in this form: ``bounded_scale`` rounds the
+        second differently (one unit in the last place in about a third of the probes the rotation bounds),
+        and the DPIM's forces stay bit for bit what they were."""
+        if self.rotations is None:
+            return dof_peak(z, None)
+        return max(dof_peak(z, ~self.rotations), dof_peak(z, self.rotations) * self.probe / MAX_ROTATION)
+
     def _evaluate(self, new: list[Direction], p: int) -> None:
         """G and H3 of the new directions at every node: ONE call of ``forces`` with the fields +-s z."""
         J, n = len(self.theta), self._n()
@@ -199,7 +216,7 @@ class OrderForcing:
                 np.multiply(self._units[d[0][0]][1][l], d[0][1], out=z)
                 for q, c in d[1:]:
                     z += c * self._units[q][1][l]
-                peak = float(np.abs(z).max())
+                peak = self._peak(z)
                 if peak > 0:  # a zero direction (zero units, or u - v of equal units): zero values, not sent
                     z *= self.probe / peak
                     rows.append((d, l, self.probe / peak))

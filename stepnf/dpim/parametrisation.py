@@ -192,7 +192,9 @@ class DPIM:
     (:class:`stepnf.dpim.solves.Solvers`; the solves of one order go together,
     :meth:`~stepnf.dpim.solves.ShiftedSolves.solve_many`); ``counters``: where solves and
     factorisations are counted (a new :class:`~stepnf.runtime.counters.Counters` per master when None);
-    ``tolerances``: of the resonance and twin checks (:class:`DPIMTolerances`).
+    ``tolerances``: of the resonance and twin checks (:class:`DPIMTolerances`); ``rotations``: a shell's
+    rotation dofs (bool (n,), radians; ``None``: none), whose probe values are bounded on their own
+    (:class:`~stepnf.dpim.nonlinear_terms.OrderForcing`).
     """
 
     forces: ForceBatch
@@ -202,6 +204,7 @@ class DPIM:
     solves: Solvers = Solvers()
     counters: Counters | None = None
     tolerances: DPIMTolerances = DPIMTolerances()
+    rotations: np.ndarray | None = None
 
     def parametrise(self, phi: np.ndarray, omega: float, order: int, *, probe: float, master: int | None = None,
                     progress: Callable[[int], None] | None = None) -> DPIMResult:
@@ -224,7 +227,7 @@ class DPIM:
         solves = ShiftedSolves(K, M, phi, omega, self.solves, R=self.spectrum.rigid, counters=counters,
                                master=master, twins=twins, twin_index=twin_index, coupling=self.tolerances.coupling,
                                resonant_exclude=self.resonant_exclude(omega, master, twin_index))
-        forcing = OrderForcing(self.forces, K, probe, order, shared_nodes(order))
+        forcing = OrderForcing(self.forces, K, probe, order, shared_nodes(order), self.rotations)
         return recursion(forcing, solves, counters, M, phi, omega, order, flags, progress)
 
     def resonant_exclude(self, omega: float, master: int | None, twin_index: Sequence[int] | None) -> list[int] | None:

@@ -83,7 +83,8 @@ def solid_model_keys(elements: Sequence[str], mesh_suffixes: Sequence[str], mesh
 
 
 def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: str | Path,
-                       scene_file: str | Path | None, mesh_needs_material: bool) -> dict[str, Any]:
+                       scene_file: str | Path | None, mesh_needs_material: bool,
+                       rotations: bool = False) -> dict[str, Any]:
     """``config`` checked against ``schema``, with exactly one of ``mesh``, ``deck`` (when the schema
     declares it) and ``[model.geometry]``.
 
@@ -95,7 +96,8 @@ def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: s
     ``material`` the default's ``{E, nu, rho}`` when isotropic (else ``{}``); other adapters and
     generated caps take one isotropic material. ``geometry`` is replaced by
     :func:`stepnf.geometry.keys.cap_geometry`'s ``{shape, a, R, h, resolution}``. The
-    ``[[model.boundary]]`` tables are checked (one of ``set`` and ``box`` each) and kept as given.
+    ``[[model.boundary]]`` tables are checked (one of ``set`` and ``box`` each; rotations ``rx ry rz`` only
+    with ``rotations``, a shell's nodes: :func:`stepnf.plugin.boundary.boundary_conditions`) and kept as given.
     """
     if "materials" in config and "materials" not in schema:
         raise SceneError(scene_file, "model.materials", "this adapter takes one isotropic [model.material] (E, nu, "
@@ -125,7 +127,7 @@ def check_solid_config(schema: Schema, config: Mapping[str, Any], *, base_dir: s
         c["material"] = cap_keys.material(c, scene_file, required="geometry" in c or mesh_needs_material)
     if "geometry" in c:
         c["geometry"] = cap_keys.cap_geometry(c, scene_file)
-    boundary_conditions(c.get("boundary"), scene_file)
+    boundary_conditions(c.get("boundary"), scene_file, rotations=rotations)
     return c
 
 
@@ -141,18 +143,18 @@ def _isotropic_only(c: Mapping[str, Any], scene_file: str | Path | None, orthotr
 
 
 def build_solid(cls: Any, checked: Mapping[str, Any], *, read_mesh: Callable[..., Any],
-                scene_file: str | Path | None) -> Any:
+                scene_file: str | Path | None, rotations: bool = False) -> Any:
     """The adapter ``cls`` for :func:`check_solid_config`'s keys: ``read_mesh(path, material=..., **run)``
     for a user's mesh, ``cls.from_deck_file(path, **run)`` for a deck, ``cls.from_cap`` for a
     generated cap (refined towards a rim the conditions hold, :mod:`stepnf.geometry.rim`); every other
     key is passed on as a run setting, and ``materials`` (when :func:`check_solid_config` gives it) to
-    ``read_mesh``. Then the ``[[model.boundary]]``
+    ``read_mesh``. Then the ``[[model.boundary]]`` (rotations allowed with ``rotations``)
     conditions (:meth:`SolidFromScene.apply_boundary`). Warns when the material's units and the
     mesh's sizes disagree; a model the adapter refuses (a ValueError) is a SceneError on ``[model]``."""
     model_data = ("element", "mesh", "deck", "geometry", "material", "materials", "boundary")
     run = {k: v for k, v in checked.items() if k not in model_data}
     material = checked["material"]
-    conditions = boundary_conditions(checked.get("boundary"), scene_file)
+    conditions = boundary_conditions(checked.get("boundary"), scene_file, rotations=rotations)
     try:
         if "mesh" in checked:
             mats = checked.get("materials")
@@ -201,6 +203,12 @@ class SolidFromScene:
     applied_conditions: tuple[dict[str, Any], ...] = ()
 
     @classmethod
+    def rotational_dofs(cls, config: Mapping[str, Any]) -> bool:
+        """Whether the nodes of the model ``config`` describes have rotations (a shell's ``rx ry rz``): its
+        ``[[model.boundary]]`` may fix them, and a condition without ``dofs`` clamps them too. A solid: False."""
+        return False
+
+    @classmethod
     def from_mesh_file(cls, path: Path, **kw: Any) -> Any:
         """The adapter for a user's mesh file (the ``mesh`` key)."""
         raise NotImplementedError
@@ -241,7 +249,7 @@ class SolidFromScene:
         """The ``[model]`` keys: a mesh, a deck or a generated cap, the material, the boundary conditions, the run
         settings (:func:`check_solid_config`)."""
         c = check_solid_config(cls.model_keys, config, base_dir=base_dir, scene_file=scene_file,
-                               mesh_needs_material=cls.mesh_needs_material)
+                               mesh_needs_material=cls.mesh_needs_material, rotations=cls.rotational_dofs(config))
         for key in cls.named_programs(config):
             value = config[key]
             shown = repr(value) if isinstance(value, str) else describe_value(value)
@@ -261,7 +269,8 @@ class SolidFromScene:
                     scene_file: str | Path | None = None) -> Any:
         """Build from the scene's ``[model]`` table (:func:`build_solid`)."""
         checked = cls.validate_config(config, base_dir=base_dir, scene_file=scene_file)
-        adapter = build_solid(cls, checked, read_mesh=cls.from_mesh_file, scene_file=scene_file)
+        adapter = build_solid(cls, checked, read_mesh=cls.from_mesh_file, scene_file=scene_file,
+                              rotations=cls.rotational_dofs(config))
         named = cls.named_programs(config)
         if named:  # allowed (validate_config refused them otherwise): printed before the first run
             adapter.program_named_by = (", ".join(f"[model] {k}" for k in named)

@@ -13,6 +13,12 @@ mid-surface hardly moves: mean squared displacement under ``mid_fraction`` of
 that of all nodes) are ``"thickness"`` when
 their normal displacement dominates away from the mid-surface (through-thickness
 stretching) and ``"in-plane"`` otherwise.
+
+Only translations are displacements: a shell adapter (six dofs per node, rotations ``rx ry rz`` in
+radians) builds its labeler with :meth:`ModeLabeler.from_dofs` and labels its fields with
+:meth:`ModeLabeler.label_dofs`, which read each node's translation from the dof directions, so a mode
+whose largest entry is a rotation is labelled by its displacement (a plain ``reshape(-1, 3)`` of six dofs
+per node would mix rotations into the displacements).
 """
 from __future__ import annotations
 
@@ -21,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from stepnf.geometry.cap import outward_normals
+from stepnf.plugin.dofs import node_vectors
 
 
 class ModeLabeler:
@@ -49,6 +56,28 @@ class ModeLabeler:
         Rg, Tg = np.meshgrid(self.r, self.theta, indexing="ij")
         self._tri = Delaunay(np.asarray(plan, dtype=float))
         self._query = np.column_stack([(Rg * np.cos(Tg)).ravel(), (Rg * np.sin(Tg)).ravel()])
+
+    #: dof coordinates and directions of a labeler built by :meth:`from_dofs`
+    _dofs: tuple[np.ndarray, np.ndarray] | None = None
+
+    @classmethod
+    def from_dofs(cls, coordinates: Any, directions: Any, radius: float, R: float = float("inf"),
+                  **kw: Any) -> "ModeLabeler":
+        """A labeler of a mid-surface model (a shell: every node on the mid-surface) from its dof coordinates
+        (n, 3) and direction codes (n,) (:data:`~stepnf.plugin.adapter.DIRECTIONS`): nodes told apart by
+        their coordinates, normals of the sphere of radius ``R`` (``inf``: a plate), plan radius ``radius``."""
+        X, D = np.asarray(coordinates, dtype=float), np.asarray(directions)
+        nodes, _ = node_vectors(np.zeros(len(D)), X, D)
+        out = cls(nodes[:, :2], np.arange(len(nodes)), outward_normals(nodes, float(R)), radius, **kw)
+        out._dofs = (X, D)
+        return out
+
+    def label_dofs(self, phi: np.ndarray):
+        """Label of one mode given as a dof field (n,) of the labeler's :meth:`from_dofs` model: its node
+        translations only (rotation dofs are not displacements)."""
+        if self._dofs is None:
+            raise ValueError("label_dofs needs a labeler built by ModeLabeler.from_dofs")
+        return self.label(node_vectors(phi, *self._dofs)[1])
 
     def _interp(self, w_mid: np.ndarray) -> np.ndarray:
         from scipy.interpolate import LinearNDInterpolator
@@ -96,7 +125,8 @@ def edge_is_held(points: np.ndarray, mid: np.ndarray, fixed: np.ndarray, a: floa
     """True when the fixed dofs zero the normal displacement at every mid-surface node of the rim.
 
     ``points`` (N, 3) node coordinates, ``mid`` indices of the mid-surface nodes among them, ``fixed``
-    (3 N,) bool, dof ``3 i + c`` of node ``i`` in direction ``c`` fixed; the rim is the mid-surface nodes
+    (k N,) bool, dof ``k i + c`` of node ``i`` in direction ``c`` fixed (``k = 3`` for a solid, 6 for a shell
+    whose directions 3-5 are rotations, which do not hold the displacement); the rim is the mid-surface nodes
     at plan radius ``a`` (to 1e-6 relative), ``R`` the sphere's radius (``inf``: flat) giving the normals.
     A clamped or simply supported edge is held; a free one, or one held only in-plane, is not.
     """
@@ -105,6 +135,6 @@ def edge_is_held(points: np.ndarray, mid: np.ndarray, fixed: np.ndarray, a: floa
     rim = mid[np.hypot(X[:, 0], X[:, 1]) >= float(a) * (1 - 1e-6)]
     if rim.size == 0:
         return False
-    free_dirs = ~np.asarray(fixed, dtype=bool).reshape(-1, 3)[rim]
+    free_dirs = ~np.asarray(fixed, dtype=bool).reshape(len(points), -1)[rim, :3]
     normals = outward_normals(points[rim], float(R))
     return bool(np.all(np.abs(normals[free_dirs]) <= 1e-12))

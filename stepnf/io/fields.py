@@ -26,9 +26,14 @@ Placement: the adapter's :meth:`~stepnf.plugin.adapter.SolverAdapter.output_mesh
 gives points and cells; each dof goes to the point nearest its
 ``dof_coordinates`` (within :data:`MATCH_TOLERANCE` of the mesh size), in its
 ``dof_directions`` component. Fixed (removed) dofs and points without a dof
-stay zero; rotation dofs are not displacements and are left out; a dof that
-lies on no point (a quadratic field on a linear output mesh) is left out too,
-so such a mesh shows the field at its vertices.
+stay zero; a dof that lies on no point (a quadratic field on a linear output
+mesh) is left out, so such a mesh shows the field at its vertices.
+
+Rotations: the displacement vector of every field holds the translations only
+(``ux uy uz``). A model with rotation dofs (a shell's ``rx ry rz``, radians per
+unit of modal amplitude or its square) gets one more 3-component vector per
+field, the rotation vector, named like the field with :data:`ROTATION_SUFFIX`
+(``mode_0_(2,0)_phi_rotation``); a solid's files are unchanged.
 
 Every file is built in a temporary folder beside the target and moved into
 place through :func:`stepnf.io.atomic.write_bytes` (the ``.h5`` before the
@@ -47,11 +52,12 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from stepnf.io.atomic import reason, write_bytes
+from stepnf.plugin.dofs import FIRST_ROTATION, rotation_mask, translation_mask
 from stepnf.plugin.output_mesh import OutputMesh
 from stepnf.errors import AdapterError, OutputError
 
 __all__ = ["OutputMesh", "DofPlacement", "dof_placement", "field_name", "collect_fields", "point_fields",
-           "write_fields", "write_mode_fields", "FIELD_SUFFIXES", "MATCH_TOLERANCE"]
+           "write_fields", "write_mode_fields", "FIELD_SUFFIXES", "MATCH_TOLERANCE", "ROTATION_SUFFIX"]
 
 #: Largest distance from a dof's coordinates to its mesh point, relative to the mesh's largest extent.
 #: Above the round-off of coordinates that went through a file (7 printed digits: 5e-7), far below
@@ -59,6 +65,8 @@ __all__ = ["OutputMesh", "DofPlacement", "dof_placement", "field_name", "collect
 MATCH_TOLERANCE = 1e-6
 #: The file suffixes written for a stem (the ``.h5`` first: the ``.xdmf`` refers to it).
 FIELD_SUFFIXES = (".h5", ".vtu", ".xdmf")
+#: Appended to a field's name for its rotation vector (models with rotation dofs).
+ROTATION_SUFFIX = "_rotation"
 #: Headroom over the raw size of the fields when checking the free disk space (h5 + vtu in base64).
 _SPACE_FACTOR = 3.0
 
@@ -66,11 +74,13 @@ _SPACE_FACTOR = 3.0
 @dataclass(frozen=True)
 class DofPlacement:
     """Where each dof goes: its ``point`` (-1: not written) and ``direction`` (0, 1, 2 for x, y, z);
-    ``unmatched`` counts the translation dofs that lie on no point of the mesh."""
+    ``unmatched`` counts the translation dofs that lie on no point of the mesh. ``rotation`` is the same
+    placement of the rotation dofs (``rx ry rz`` as components 0, 1, 2), ``None`` without rotation dofs."""
 
     point: np.ndarray
     direction: np.ndarray
     unmatched: int
+    rotation: "DofPlacement | None" = None
 
 
 def dof_placement(mesh: OutputMesh, coordinates: Any, directions: Any, n_dofs: int,
@@ -96,7 +106,7 @@ def dof_placement(mesh: OutputMesh, coordinates: Any, directions: Any, n_dofs: i
         raise AdapterError(f"{who}: output_mesh() has points of shape {P.shape}; expected (P, 3), P > 0")
     scale = float(np.ptp(P, axis=0).max()) or 1.0
     dist, idx = cKDTree(P).query(X)
-    translation = (D >= 0) & (D < 3)
+    translation = translation_mask(D)
     on_point = dist <= MATCH_TOLERANCE * scale
     if translation.any() and not (on_point & translation).any():
         raise AdapterError(f"{who}: none of its dofs lies on a point of its output mesh (nearest at "
@@ -104,7 +114,13 @@ def dof_placement(mesh: OutputMesh, coordinates: Any, directions: Any, n_dofs: i
                            "disagree")
     keep = on_point & translation
     point = np.where(keep, idx, -1).astype(np.int64)
-    return DofPlacement(point, np.where(keep, D, 0), int(np.count_nonzero(translation & ~on_point)))
+    rotation = rotation_mask(D)
+    rot = None
+    if rotation is not None:
+        on = on_point & rotation
+        rot = DofPlacement(np.where(on, idx, -1).astype(np.int64), np.where(on, D - FIRST_ROTATION, 0),
+                           int(np.count_nonzero(rotation & ~on_point)))
+    return DofPlacement(point, np.where(keep, D, 0), int(np.count_nonzero(translation & ~on_point)), rot)
 
 
 def point_fields(fields: Mapping[str, np.ndarray], placement: DofPlacement, n_points: int) -> dict[str, np.ndarray]:
@@ -236,4 +252,8 @@ def write_mode_fields(results_path: str | Path, mesh: OutputMesh, modes: Sequenc
         xdmf = _targets(stem)[-1]
         raise OutputError(f"cannot write the field file {xdmf}: {exc}", path=xdmf) from exc
     dofs = collect_fields(modes, Phi)
-    return write_fields(stem, mesh, point_fields(dofs, placement, mesh.n_points))
+    points = point_fields(dofs, placement, mesh.n_points)
+    if placement.rotation is not None:
+        turns = point_fields(dofs, placement.rotation, mesh.n_points)
+        points.update({name + ROTATION_SUFFIX: turns[name] for name in dofs})
+    return write_fields(stem, mesh, points)

@@ -17,12 +17,17 @@ elastic mode gives ``K x = lambda M x``. The scale-aware residual is therefore
   1.5e-7 and 9e-7 for the least-held combination of cantilevers at L/h = 1000 and 300: seven decades
   apart, so :data:`RIGID_FIELD_RESIDUAL` = 1e-10 leaves three on each side.
 * any other candidate (a mechanism that is no rigid motion of the whole, or a model without dof
-  coordinates, e.g. a polynomial one): :func:`null_mask` calls an eigenvector a null vector when
-  ``rho <= NULL_RESIDUAL = eps / 1e-2``: no elastic mode that double precision resolves to 1% (the
-  bound :func:`stepnf.nf.diagnostics.check_conditioning` accepts) has so small a residual (measured:
-  6e-14 for the cantilever at L/h = 1000, 8e-12 at 300; K = diag(1, 1e14) gives 1), while computed
-  null vectors give 1e-15 to 8e-15. A dof no element stiffens (a loose node) counts in ``|K| |x|``
-  with the largest row sum (:func:`row_scales`).
+  coordinates, e.g. a polynomial one): :func:`null_mask` calls an eigenvector ``x`` a null vector when its
+  Rayleigh quotient is zero within its own rounding: ``|x^T K x| <= NULL_SAFETY eps |x|^T |K| |x|``
+  (:func:`energy_ratios`; ``|x|^T |K| |x|`` is what a rounding of K's entries or of the products with K
+  by ``eps`` changes ``x^T K x`` by, at most, to first order). Measured ratios ``|x^T K x| / (eps |x|^T |K|
+  |x|)``: computed null vectors 0.008 to 0.15 (free bodies, random semi-definite K, massless dofs, a loose
+  node: 0); elastic modes: 37 for the fundamental of a tet10 cantilever strip at L/h = 1000 (FEniCSx; its
+  eigenvalue is 4e-15 of the largest), 7e3 for a fundamental at 3e-12 of the largest in a random basis,
+  4.5e15 for K = diag(1, 1e14). :data:`NULL_SAFETY` = 10 leaves a factor 66 above the null vectors and
+  3.7 under that strip's fundamental (whose own bound, 1 / 37 = 2.7e-2, is beyond what the run accepts
+  anyway: :func:`stepnf.nf.roundoff.eigenvalue_roundoff`). A dof no element stiffens (a loose node) counts
+  in ``|K| |x|`` with the largest row sum (:func:`row_scales`).
 
 A semi-definite M (reduced-integration C3D20R mass matrices, lumped masses with massless dofs) has
 infinite eigenvalues: :func:`dense_pencil_modes` solves ``M x = mu (K - sigma M) x`` instead of
@@ -38,8 +43,8 @@ from stepnf.errors import NumericalError
 
 #: Residual (relative to the round-off scale of K) below which a rigid-body field is a null vector of K.
 RIGID_FIELD_RESIDUAL = 1e-10
-#: Residual below which an eigenvector of a candidate eigenvalue is a null vector (100 eps: module docstring).
-NULL_RESIDUAL = np.finfo(float).eps / 1e-2
+#: A vector ``x`` is a null vector of K when ``|x^T K x| <= NULL_SAFETY eps |x|^T |K| |x|`` (module docstring).
+NULL_SAFETY = 10.0
 #: A diagonal entry of M below this times the largest sends the dense solve to the pencil ``(M, K - sigma M)``:
 #: ``eigh(K, M)`` with masses of 1e-14 next to 1 puts the first frequencies 8% off with no error (measured,
 #: a 10-dof lumped-mass model; the pencil and static condensation agree to 1e-15).
@@ -95,9 +100,31 @@ def residuals(K, X: np.ndarray) -> np.ndarray:
     return num / np.maximum(den, np.finfo(float).tiny)
 
 
+def abs_energy(K, X: np.ndarray) -> np.ndarray:
+    """``|x|^T |K| |x|`` of each column of ``X`` (n, k): what the rounding of ``x^T K x``, and of K's entries,
+    scales with on ``x`` (:func:`energy_ratios`); the amplitude on a dof no element stiffens counted with the
+    largest row sum (:func:`row_scales`), as in :func:`residuals`."""
+    A = np.abs(np.asarray(X, dtype=float).reshape(K.shape[0], -1))
+    d = abs_product(K, np.ones(K.shape[0]))[:, 0]
+    s = row_scales(K, d)
+    loose = np.where(s != d, s, 0.0)
+    return np.einsum("ij,ij->j", A, abs_product(K, A)) + np.einsum("ij,ij->j", A, loose[:, None] * A)
+
+
+def energy_ratios(K, X: np.ndarray) -> np.ndarray:
+    """``|x^T K x| / (|x|^T |K| |x|)`` of each column of ``X`` (n, k): the Rayleigh quotient's numerator over its
+    own rounding scale. ``eps`` over it is the relative error that a rounding of K's entries (or of the products
+    with K) by ``eps`` leaves in the eigenvalue of an eigenvector ``x`` (first order: ``d lambda = x^T dK x`` for
+    ``|dK| <= eps |K|``); a null vector of K gives a few eps at most (:data:`NULL_SAFETY`)."""
+    X = np.asarray(X, dtype=float).reshape(K.shape[0], -1)
+    num = np.abs(np.einsum("ij,ij->j", X, np.asarray(K @ X)))
+    return num / np.maximum(abs_energy(K, X), np.finfo(float).tiny)
+
+
 def null_mask(K, X: np.ndarray) -> np.ndarray:
-    """Which columns of ``X`` are null vectors of K (``rho <= NULL_RESIDUAL``)."""
-    return residuals(K, X) <= NULL_RESIDUAL
+    """Which columns of ``X`` are null vectors of K: ``|x^T K x| <= NULL_SAFETY eps |x|^T |K| |x|`` (the
+    Rayleigh quotient is zero within its own rounding, :func:`energy_ratios`)."""
+    return energy_ratios(K, X) <= NULL_SAFETY * np.finfo(float).eps
 
 
 def rigid_field_residuals(K, Q: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from stepnf.nf.coefficient import MethodResult
+from stepnf.nf.roundoff import dnf_slope
 
 
 def dnf_condensed(omega_p: float, h_s: float, dh_s: float, first: MethodResult, dB: float = 0.0) -> MethodResult:
@@ -17,14 +18,21 @@ def dnf_condensed(omega_p: float, h_s: float, dh_s: float, first: MethodResult, 
 
     ``first``: DNF of the same master from the STEP at ``+-q phi`` (its ``B``, its fields and flags are
     kept); ``dB``: an error estimate of that ``B`` (absolute; the larger of it and ``first``'s rounding
-    bound of ``B`` is used). ``T_error`` and ``extra["roundoff"]``: ``(3 dh_s / (8 w^2) + dB / 4) / |T|``;
-    ``extra`` also keeps ``h_s``, ``dh_s`` and the first ``T``.
+    bound of ``B`` is used). ``T_error`` and ``extra["roundoff"]``: ``(3 dh_s / (8 w^2) + dB / 4 + dT_lambda)
+    / |T|``, ``dT_lambda = c eps_lam |lambda dT/dlambda|`` the master's own eigenvalue error
+    (:func:`stepnf.nf.roundoff.eigenvalue_part`; ``c eps_lam`` as ``first``'s part over its slope, and
+    ``dB/dlambda`` from ``first``: :func:`stepnf.nf.evaluators.dnf`; :func:`stepnf.nf.roundoff.dnf_slope`),
+    also in ``extra["roundoff_dT_lambda"]``; ``extra`` also keeps ``h_s``, ``dh_s`` and the first ``T``.
     """
     w2 = omega_p ** 2
     B = float(first.extra["B"])
     T = 3.0 * h_s / (8.0 * w2) - B / 4.0
     dB = max(float(dB), float(first.extra.get("roundoff_dB", 0.0)))
-    dT = 3.0 * dh_s / (8.0 * w2) + dB / 4.0
+    eps_lam = float(first.extra.get("roundoff_eps_lambda", 0.0))
+    slope = dnf_slope(w2, h_s, float(first.extra.get("dB_dlambda", 0.0)))
+    s1 = abs(float(first.extra.get("roundoff_lambda_slope", 0.0)))  # first's part over its slope: c eps_lam
+    dT_lam = float(first.extra.get("roundoff_dT_lambda", 0.0)) / s1 * abs(slope) if s1 > 0 else 0.0
+    dT = 3.0 * dh_s / (8.0 * w2) + dB / 4.0 + dT_lam
     rel = dT / abs(T) if T != 0 else (0.0 if dT == 0 else np.inf)
     res = MethodResult(first.method, float(T), (0.0, 0.0, 0.0, h_s - w2 * B, w2 * B, 0.0), list(first.flags),
                        order=first.order)
@@ -33,6 +41,8 @@ def dnf_condensed(omega_p: float, h_s: float, dh_s: float, first: MethodResult, 
     # what still cancels: the two terms of T (a cantilever's first mode: 15-fold), no longer A against h
     res.extra["cancellation"] = (3.0 * abs(h_s) / (8.0 * w2) + abs(B) / 4.0) / abs(T) if T != 0 else np.inf
     res.extra.update(h_s=float(h_s), dh_s=float(dh_s), dB=dB, T_first=float(first.T), roundoff=float(rel),
-                     roundoff_dT=float(dT), T_change=None)  # no second STEP amplitude: no change measured
+                     roundoff_dT=float(dT), roundoff_dT_lambda=dT_lam, roundoff_eps_lambda=eps_lam,
+                     roundoff_lambda_slope=float(slope),
+                     T_change=None)  # no second STEP amplitude: no change measured
     res.T_error = float(rel)
     return res

@@ -25,6 +25,8 @@ from stepnf.flags import new_flag
 from stepnf.nf.evaluators import FullOrderContext, Tolerances, coupled
 from stepnf.linalg.factorization import matrix_diagonal
 from stepnf.linalg.modal_analysis import ModalBasis
+from stepnf.linalg.null_space import abs_energy
+from stepnf.nf.roundoff import eigenvalue_roundoff
 
 
 def slow_fast_ratio(p: int, omega: np.ndarray, g: np.ndarray, tol: Tolerances,
@@ -255,8 +257,10 @@ def t_error(T: float, T2: float) -> float:
     return abs(T - T2) / abs(T) if T != 0 else (0.0 if T2 == 0 else float("inf"))
 
 
-def smooth_eigenvalue(K: sp.spmatrix, M: sp.spmatrix, X: np.ndarray | None, D: np.ndarray | None) -> float | None:
-    """An upper bound of the lowest elastic eigenvalue from smooth fields, without an eigen-solve.
+def smooth_field(K: sp.spmatrix, M: sp.spmatrix, X: np.ndarray | None,
+                 D: np.ndarray | None) -> tuple[float, np.ndarray] | None:
+    """The smoothest field's Ritz value and vector ``(lambda, u)`` (u (n,), M-normalised), without an eigen-solve:
+    the value bounds the lowest elastic eigenvalue from above.
 
     Rayleigh-Ritz on the quadratic displacement fields ``u_d = x_e x_f``
     (centred, scaled coordinates) with the rigid motions projected out: the
@@ -287,37 +291,37 @@ def smooth_eigenvalue(K: sp.spmatrix, M: sp.spmatrix, X: np.ndarray | None, D: n
     if not q.shape[1]:
         return None
     Kr, Mr = q.T @ (block_product(K) @ q), q.T @ (Mb @ q)
-    lam = np.linalg.eigvalsh(np.linalg.solve(np.linalg.cholesky(Mr), np.linalg.solve(np.linalg.cholesky(Mr),
-                                                                                      Kr).T))
-    return float(max(lam.min(), 0.0))
+    L = np.linalg.cholesky(Mr)
+    lam, y = np.linalg.eigh(np.linalg.solve(L, np.linalg.solve(L, Kr).T))
+    u = q @ np.linalg.solve(L.T, y[:, 0])
+    return float(max(lam[0], 0.0)), u
 
 
-def conditioning_ratio(lam_low: float, K: sp.spmatrix, M: sp.spmatrix) -> float:
-    """``lambda_low / lambda_max``, ``lambda_max`` estimated by ``max(diag K / diag M)``."""
-    from stepnf.linalg.modal_analysis import lambda_scale
+#: a mode whose eigenvalue's own rounding bound (:func:`stepnf.nf.roundoff.eigenvalue_roundoff`) exceeds this is
+#: flagged (``ill_conditioned``); above :data:`REFUSE_AT` (an eigenvalue wrong by a percent or more) it is refused
+FLAG_AT = 1e-6
+REFUSE_AT = 1e-2
 
-    return float(lam_low / lambda_scale(K, M))
+
+def _conditioning_text(what: str, err: float) -> str:
+    return (f"{what}: double precision resolves it only to about {min(err, 1.0):.0e} (relative: eps |phi|^T |K| "
+            "|phi| / lambda, the rounding of K on that mode, or |lambda - phi^T K phi| / lambda), and the frequencies "
+            "inherit that error (each T has its own bound, larger where its terms cancel: T_error, and a "
+            "t_roundoff flag above the tolerance). A very thin structure meshed with solid elements does this (its "
+            "bending modes are locally rigid motions: stiffness ratio ~ (a/h)^4); use a shell model, or fewer "
+            "through-thickness elements")
 
 
-def check_conditioning(r: float, *, flag_at: float = 1e-6, refuse_at: float = 1e-2) -> list[dict]:
-    """Flag (or refuse) a model whose stiffness spread exceeds what double precision resolves.
+def check_conditioning(err: float, *, what: str = "the smoothest field's eigenvalue", flag_at: float = FLAG_AT,
+                       refuse_at: float = REFUSE_AT) -> list[dict]:
+    """Flag (or refuse) one field whose eigenvalue's own rounding bound ``err`` (relative,
+    :func:`stepnf.nf.roundoff.eigenvalue_roundoff`) exceeds what the run accepts.
 
-    The lowest elastic eigenvalue is computed with an absolute error of about
-    ``eps * lambda_max``, i.e. a relative error ``eps / r`` with
-    ``r = lambda_1 / lambda_max``. A 3D solid model of a shell has
-    ``r ~ (h/a)^4``: fine at h/a = 0.02 (r ~ 1e-8), hopeless at h/a = 1e-4
-    (r ~ 1e-17). Above ``flag_at`` the results carry an ``ill_conditioned``
-    flag; above ``refuse_at`` (frequencies wrong by a percent or more) the run
-    stops with a :class:`NumericalError`.
+    Above ``flag_at`` an ``ill_conditioned`` flag; above ``refuse_at`` (an eigenvalue wrong by a percent or
+    more) a :class:`NumericalError` (the model stage: the smoothest field, whose Ritz value bounds the
+    fundamental from above, is beyond reach, so the fundamental is too, before any eigen-solve).
     """
-    from stepnf.errors import NumericalError
-
-    err = np.finfo(float).eps / max(r, 1e-300)
-    text = (f"the lowest elastic eigenvalue is {r:.1e} times the largest: double precision resolves it only "
-            f"to about {min(err, 1.0):.0e} (relative), and the frequencies inherit that error (each T has its "
-            "own bound, larger where its terms cancel: T_error, and a t_roundoff flag above the tolerance). A very "
-            "thin structure meshed with solid elements does this (stiffness ratio ~ (a/h)^4); use a shell "
-            "model, or fewer through-thickness elements")
+    text = _conditioning_text(what, err)
     if err > refuse_at:
         raise NumericalError("ill-conditioned model: " + text)
     if err > flag_at:
@@ -325,19 +329,74 @@ def check_conditioning(r: float, *, flag_at: float = 1e-6, refuse_at: float = 1e
     return []
 
 
+def mode_bounds(basis: ModalBasis, K: sp.spmatrix, smooth: float | None = None) -> np.ndarray:
+    """Each elastic mode's eigenvalue rounding bound (:func:`stepnf.nf.roundoff.eigenvalue_roundoff`), the
+    lowest one's relative to ``min(lambda_0, smooth)`` (the smooth-field Ritz value: it catches a first
+    eigenvalue that round-off has pushed far too high)."""
+    lam = basis.omega ** 2
+    if smooth is not None and len(lam):
+        lam = lam.copy()
+        lam[0] = min(lam[0], smooth)
+    return eigenvalue_roundoff(K, basis.phi, lam)
+
+
+def conditioning_flags(basis: ModalBasis, K: sp.spmatrix, smooth: float | None = None, masters: Sequence[int] = (),
+                       *, flag_at: float = FLAG_AT, refuse_at: float = REFUSE_AT) -> list[dict]:
+    """The run's ``ill_conditioned`` flag from each elastic mode's own bound (:func:`mode_bounds`), or [].
+
+    The flag's ``value`` is the largest bound among the masters (else among all modes), ``bounds`` the bound of
+    every mode above ``flag_at`` (index -> bound), ``refused`` the masters above ``refuse_at``: each of their
+    methods gets an ``unresolved_mode`` flag (:func:`unresolved_flags`: T n/a). ``smooth``: the smoothest
+    field's Ritz value (:func:`mode_bounds`)."""
+    if not basis.n_elastic:
+        return []
+    err = mode_bounds(basis, K, smooth)
+    high = [int(j) for j in np.flatnonzero(err > flag_at)]
+    if not high:
+        return []
+    ms = [int(p) for p in masters if 0 <= int(p) < len(err)]
+    worst = max(ms, key=lambda p: err[p]) if ms and max(err[ms]) > flag_at else max(high, key=lambda j: err[j])
+    refused = [p for p in ms if err[p] > refuse_at]
+    lost = [int(j) for j in np.flatnonzero(err > refuse_at)]
+    text = _conditioning_text(f"mode {worst}'s eigenvalue ({float(basis.omega[worst]) ** 2:.3e})", float(err[worst]))
+    if lost:
+        text += (f". Beyond {refuse_at:g}: mode{'s' if len(lost) > 1 else ''} {', '.join(map(str, lost))}"
+                 + (f"; master{'s' if len(refused) > 1 else ''} {', '.join(map(str, refused))} n/a" if refused else
+                    " (no master)"))
+    return [new_flag("ill_conditioned", value=float(err[worst]), message=text,
+                     bounds={int(j): float(err[j]) for j in high}, refused=refused)]
+
+
+def unresolved_flags(p: int, run_flags: Sequence[dict]) -> list[dict]:
+    """The ``unresolved_mode`` flag of master ``p`` when the run's ``ill_conditioned`` flag refused it
+    (:func:`conditioning_flags`): every method of that master gets it (T n/a, no backbone validity)."""
+    for f in run_flags:
+        if f.get("kind") == "ill_conditioned" and p in (f.get("refused") or ()):
+            bounds = f.get("bounds") or {}
+            err = float(bounds.get(p, bounds.get(str(p), f.get("value", np.inf))))  # str: a stored run's keys
+            return [new_flag("unresolved_mode", mode=int(p), value=err,
+                             message=f"master mode {p}'s eigenvalue is resolved only to about {err:.0e} (relative; "
+                                     "the rounding of K on that mode): beyond the 1% the run accepts, T is n/a")]
+    return []
+
+
 def soft_mode_flags(rigid_eigenvalues: np.ndarray, scale: float, rigid_tolerance: float,
-                    refuse_at: float = 1e-2) -> list[dict]:
+                    refuse_at: float = REFUSE_AT, rigid: np.ndarray | None = None,
+                    K: sp.spmatrix | None = None) -> list[dict]:
     """Flag modes counted as rigid (``|w^2| <= rigid_tolerance * scale``) whose eigenvalue is resolved.
 
-    A true rigid-body eigenvalue is zero up to round-off, ``~eps * scale``. An
-    eigenvalue above ``eps / refuse_at * scale`` is resolved to better than
-    ``refuse_at`` (the bound :func:`check_conditioning` accepts for elastic
-    modes), so it may well be a very soft elastic mode (a weak support, a
-    flexible appendage): counted as rigid, it shifts every master index and
-    leaves the modal sums. ``rigid_eigenvalues`` in (rad/s)^2.
+    A true rigid-body eigenvalue is zero up to its own round-off, ``eps |x|^T |K| |x|`` for its mode ``x``
+    (``rigid`` (n, r), M-normalised, with ``K``; without them ``eps * scale``, ``scale`` the largest eigenvalue).
+    An eigenvalue above that round-off divided by ``refuse_at`` is resolved to better than ``refuse_at`` (the
+    bound :func:`conditioning_flags` accepts for elastic modes), so it may well be a very soft elastic mode
+    (a weak support, a flexible appendage): counted as rigid, it shifts every master index and leaves the
+    modal sums. ``rigid_eigenvalues`` in (rad/s)^2.
     """
-    floor = np.finfo(float).eps / refuse_at * scale
     lam = np.asarray(rigid_eigenvalues, dtype=float)
+    if rigid is not None and K is not None and rigid.shape[1] == len(lam):
+        floor = np.finfo(float).eps / refuse_at * abs_energy(K, rigid)
+    else:
+        floor = np.full(len(lam), np.finfo(float).eps / refuse_at * scale)
     suspects = [int(i) for i in np.nonzero(lam > floor)[0]]
     if not suspects:
         return []
@@ -345,21 +404,10 @@ def soft_mode_flags(rigid_eigenvalues: np.ndarray, scale: float, rigid_tolerance
     return [new_flag("soft_modes_counted_rigid", modes=suspects,
                      message=f"{len(suspects)} of the {len(lam)} modes counted as rigid ({text}; rigid modes "
                              f"{suspects} in ascending order) lie below analysis.rigid_tolerance x lambda_max = "
-                             f"{rigid_tolerance:g} x {scale:.3e} but far above round-off ({floor:.1e}): they may be "
-                             "real, very soft elastic modes. If so, set analysis.rigid_modes to the number of true "
-                             "rigid-body modes or lower analysis.rigid_tolerance; elastic mode indices shift with it")]
-
-
-def conditioning_flags(basis: ModalBasis, K: sp.spmatrix, M: sp.spmatrix,
-                       smooth: float | None = None) -> list[dict]:
-    """:func:`check_conditioning` with the lowest computed eigenvalue (and the smooth-field bound, which
-    catches a first eigenvalue that round-off has pushed far too high)."""
-    if not basis.n_elastic:
-        return []
-    lam = float(basis.omega[0] ** 2)
-    if smooth is not None:
-        lam = min(lam, smooth)
-    return check_conditioning(conditioning_ratio(lam, K, M))
+                             f"{rigid_tolerance:g} x {scale:.3e} but above {1 / refuse_at:g} x their round-off "
+                             f"({', '.join(f'{floor[i] * refuse_at:.1e}' for i in suspects)}): they may be very soft "
+                             "elastic modes. If so, set analysis.rigid_modes to the number of true rigid-body modes "
+                             "or lower analysis.rigid_tolerance; elastic mode indices shift with it")]
 
 
 def captured_share(p: int, st, full, g_all: np.ndarray, S, M: sp.spmatrix) -> float | None:

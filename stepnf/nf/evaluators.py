@@ -59,21 +59,10 @@ from stepnf.errors import NumericalError
 from stepnf.flags import new_flag
 from stepnf.linalg.deflation import DeflatedSolver
 from stepnf.linalg.factorization import Factorization, PseudoInverse, factorize
-from stepnf.nf.linearised import Spectrum, qm_T_error
-from stepnf.nf.roundoff import cancellation, dnf_roundoff, qm_roundoff
+from stepnf.nf.linearised import Spectrum, qm_T_error, resolvent_mass
+from stepnf.nf.roundoff import Rounding, cancellation, dnf_roundoff, dnf_slope, with_qm_roundoff
 from stepnf.linalg.shifted import ShiftedFactorizer, Slot
 from stepnf import methods
-
-
-@dataclass(frozen=True)
-class Rounding:
-    """What the full-order evaluators (:func:`dnf`, :func:`smd_full`, :func:`md_full`) need to bound T's
-    rounding (:mod:`stepnf.nf.roundoff`): the STEP amplitude ``q`` (modal), ``H(phi_p, phi_p, phi_p)`` (n,)
-    or None, and the solver's printed force digits (None: full double precision)."""
-
-    q: float
-    Hv: np.ndarray | None = None
-    digits: int | None = None
 
 
 @dataclass(frozen=True)
@@ -274,8 +263,10 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
     the first-order change of T: ``dA = 4 dGv^T a_bar``, ``dB = 4 dGv^T b_bar`` (also in
     ``extra["T_change"]``); with ``rounding`` (the STEP amplitude and the solver's force digits),
     ``extra["roundoff"]`` bounds the error the forces' rounding and the solves leave in T through the
-    cancellation of its terms (:mod:`stepnf.nf.roundoff`), ``extra["cancellation"]`` measures that
-    cancellation, and ``T_error`` is the larger of the two.
+    cancellation of its terms (:mod:`stepnf.nf.roundoff`), and the master's own eigenvalue error through
+    ``lambda dT/dlambda`` (``extra["roundoff_dT_lambda"]``; ``dB/dlambda = 16 y^T M (K - 4 w^2 M)^-1 M z``
+    is ``4 (z - y)^T M z / w^2`` by the same identity, no solve: ``extra["dB_dlambda"]``),
+    ``extra["cancellation"]`` measures that cancellation, and ``T_error`` is the larger of the two.
     """
     w2 = omega_p ** 2
     if y is None:
@@ -299,7 +290,8 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
     B = 4 * float(y @ (ctx.M @ z))  # = 2 b_bar^T Gv, without its cancellation (docstring)
     T = (3 * (A + h) + w2 * B) / (8 * w2)
     res = MethodResult(methods.DNF, T, (0.0, 0.0, 0.0, A + h, w2 * B, 0.0), [], order=methods.FULL)
-    res.extra = {"A": A, "B": B, "h": h, "cancellation": cancellation(A, h, w2 * B)}
+    res.extra = {"A": A, "B": B, "h": h, "cancellation": cancellation(A, h, w2 * B),
+                 "dB_dlambda": 4.0 * float((z - y) @ (ctx.M @ z)) / w2}
     if ctx.keep_fields:
         res.fields = {"a_bar": a_bar, "w2_b_bar": 0.5 * (z - y)}  # w2_b_bar = w^2 b_bar
     res.extra["T_change"] = None  # no check amplitude: no change measured
@@ -309,7 +301,8 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
         res.T_error = abs(dT) / abs(T) if T != 0 else (0.0 if dT == 0 else np.inf)
         res.extra["T_change"] = res.T_error
     if rounding is not None:
-        rel, parts = dnf_roundoff(phi, rounding.q, omega_p, T, Gv, rounding.Hv, y, z, ctx.K, ctx.M, rounding.digits)
+        rel, parts = dnf_roundoff(phi, rounding.q, omega_p, T, Gv, rounding.Hv, y, z, ctx.K, ctx.M, rounding.digits,
+                                  slope=dnf_slope(w2, A + h + w2 * B, res.extra["dB_dlambda"]))
         res.extra.update(roundoff=rel, **{f"roundoff_{k}": v for k, v in parts.items()})
         res.T_error = rel if res.T_error is None else max(res.T_error, rel)
     return res, y
@@ -330,19 +323,7 @@ def smd_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float,
     res, forms = _qm_full(methods.SMD, phi, omega_p, Gv, h, theta, ctx)
     if dGv is not None:
         res.T_error = qm_T_error(res, forms, phi, omega_p, theta, 0.0, ctx.Kpinv.R, dGv, dh, spectrum)
-    return with_qm_roundoff(res, phi, omega_p, Gv, theta, ctx, rounding)
-
-
-def with_qm_roundoff(res: MethodResult, phi: np.ndarray, omega_p: float, Gv: np.ndarray, theta: np.ndarray | None,
-                     ctx: FullOrderContext, rounding: Rounding | None) -> MethodResult:
-    """``res`` with ``extra["roundoff"]`` (:func:`~stepnf.nf.roundoff.qm_roundoff`), ``extra["T_change"]``
-    (the two-amplitude change) and ``T_error`` the larger of the two; unchanged without ``rounding``."""
-    if rounding is None or theta is None or not np.isfinite(res.T):
-        return res
-    rel = qm_roundoff(phi, rounding.q, omega_p, res.T, Gv, rounding.Hv, theta, ctx.K, rounding.digits)
-    res.extra["T_change"], res.extra["roundoff"] = res.T_error, rel
-    res.T_error = rel if res.T_error is None else max(res.T_error, rel)
-    return res
+    return with_qm_roundoff(res, phi, omega_p, Gv, theta, ctx.K, rounding, forms=forms, h=h)
 
 
 def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: FullOrderContext,
@@ -372,7 +353,10 @@ def md_full(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, c
                                          theta)
     if dGv is not None and theta is not None:
         res.T_error = qm_T_error(res, forms, phi, omega_p, theta, w2, D, dGv, dh, spectrum)
-    return with_qm_roundoff(res, phi, omega_p, Gv, theta, ctx, rounding)
+    s = None  # theta's own dependence on lambda (Z M theta from the computed modes); without them left out
+    if rounding is not None and theta is not None and spectrum is not None:
+        s = float((ctx.M @ theta) @ resolvent_mass(theta, forms[0], forms[1], w2, D, spectrum))
+    return with_qm_roundoff(res, phi, omega_p, Gv, theta, ctx.K, rounding, forms=forms, h=h, s=s)
 
 
 def md_twin_flag(p: int, phi: np.ndarray, Gv: np.ndarray, D: np.ndarray, g: np.ndarray | None, tol: Tolerances,

@@ -12,7 +12,9 @@ Where ``h`` and ``W_max`` come from (:func:`gamma_scale`):
 * ``[analysis] transverse`` ("ux", "uy", "uz" or a direction vector ``e``):
   ``W_max = max over nodes |u . e|`` of the mode shape, for any mesh (nodes are
   told apart by their dof coordinates; the fixed dofs of a boundary condition
-  carry no displacement and are not needed);
+  carry no displacement and are not needed); ``u`` is the node's translation:
+  a shell's rotation dofs (``rx ry rz``, radians) never enter W_max, even where
+  a mode's largest entry is a rotation;
 * otherwise the adapter's own :meth:`~stepnf.plugin.adapter.SolverAdapter.transverse_amplitude`
   (a generated cap: the mid-surface normal displacement);
 * ``h``: ``[analysis] thickness``, otherwise the model's shell scales (a cap's h).
@@ -35,6 +37,7 @@ import numpy as np
 
 from stepnf.flags import new_flag
 from stepnf.plugin.adapter import DIRECTIONS
+from stepnf.plugin.dofs import translations_only
 
 #: Below this share of the mode's kinetic energy in the transverse direction (:func:`transverse_share`) Gamma is
 #: n/a: the mode moves mostly across it, and W_max measures a secondary component. Half is where the transverse
@@ -83,15 +86,18 @@ def transverse_part(phi: np.ndarray, X: np.ndarray | None, D: np.ndarray, transv
 
 def transverse_share(phi: np.ndarray, M: Any, X: np.ndarray | None, D: np.ndarray | None,
                      transverse: str | tuple) -> float | None:
-    """The share of the mode's kinetic energy carried by the transverse direction: ``phi_e^T M phi_e / phi^T M phi``
-    with ``phi_e`` = :func:`transverse_part` (1 for a pure bending mode of a plate whose normal is ``e``, 0 for
-    an in-plane one); ``None`` without dof directions or a transverse dof."""
+    """The share of the mode's translational kinetic energy carried by the transverse direction:
+    ``phi_e^T M phi_e / phi_t^T M phi_t`` with ``phi_e`` = :func:`transverse_part` and ``phi_t`` the mode's
+    translations (its rotations, a shell's ``rx ry rz`` in radians, set to zero: a rotary inertia is no
+    displacement; for a solid ``phi_t = phi``): 1 for a pure bending mode of a plate whose normal is ``e``,
+    0 for an in-plane one; ``None`` without dof directions or a transverse dof."""
     if D is None:
         return None
     pe = transverse_part(phi, X, D, transverse)
     if pe is None:
         return None
-    total = float(phi @ (M @ phi))
+    pt = translations_only(phi, D)
+    total = float(pt @ (M @ pt))
     return float(pe @ (M @ pe)) / total if total > 0 else None
 
 

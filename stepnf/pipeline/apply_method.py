@@ -10,6 +10,7 @@ from stepnf.nf.evaluators import (Rounding, Tolerances, dnf, dnf_uses_factorisat
                                    retained_set, smd_full)
 from stepnf.methods import DNF, MD, MD_FULL, MODAL_EVALUATORS, SMD_FULL, method
 from stepnf.nf.linearised import Spectrum
+from stepnf.nf.roundoff import roundoff_message, with_modal_eigen_part
 from stepnf.pipeline.context import full_order_context
 from stepnf.pipeline.master import MasterData
 from stepnf.pipeline.state import StageView
@@ -27,12 +28,15 @@ def modal_method(name: str, p: int, omega: np.ndarray, g: np.ndarray, h: float, 
 
 
 def run_modal(state: StageView, d: MasterData, ev: str) -> MethodResult:
-    """A modal evaluator over the retained set, with T again at the check amplitude and truncation flags."""
+    """A modal evaluator over the retained set, with T again at the check amplitude, the master's own
+    eigenvalue error through T (:func:`~stepnf.nf.roundoff.with_modal_eigen_part`) and truncation flags."""
     S = retained_set(d.p, state.n_ret, state.m)
     r = modal_method(ev, d.p, state.omega, d.g_mod, d.h_mod, S, state.tol, state.labels, d.floor)
     if d.g_chk is not None:
         r2 = modal_method(ev, d.p, state.omega, d.g_chk, d.h_chk, S, state.tol, state.labels, d.floor)
         r.T_error = t_error(r.T, r2.T)
+    r = with_modal_eigen_part(r, lambda om: modal_method(ev, d.p, om, d.g_mod, d.h_mod, S, state.tol, state.labels,
+                                                         d.floor).T, state.omega, d.p, state.K, d.phi)
     frac = captured_share(d.p, d.st, state.full, d.g_all, S, state.M)
     if frac is not None:
         r.flags += truncation_flags(r, frac, len(S))
@@ -140,10 +144,7 @@ def run_method(state: StageView, d: MasterData, name: str, ev: str) -> MethodRes
     roundoff = extra.get("roundoff")
     if roundoff is not None and roundoff > tolerance:
         r.flags.append(new_flag("t_roundoff", value=float(roundoff),
-                                message=f"rounding of the forces and the solves leaves T an error of up to "
-                                        f"{roundoff:.2e} (relative): its terms cancel "
-                                        f"{extra.get('cancellation', float('nan')):.2g}-fold; tolerance "
-                                        f"{tolerance:.1e}"))
+                                message=roundoff_message(d.p, r.T, extra, tolerance)))
     if state.gscale is not None:
         r.gamma = state.gscale.gamma(r.T, d.w_max)
     return r

@@ -44,6 +44,7 @@ from stepnf.nf.gamma import gamma_scale
 from stepnf.linalg.shifted import ShiftedFactorizer, Slot
 from stepnf.methods import DNF
 from stepnf.step.procedure import ForceEvaluator, step_amplitude
+from stepnf.plugin.dofs import rotation_mask, translation_mask
 from stepnf.pipeline.backbone_slots import ParitySlots
 from stepnf.pipeline.context import full_order_context
 from stepnf.pipeline.outputs import BackboneOutput, Backbones, Evaluations, RunContext, RunModel, RunModes, StepTerms
@@ -139,7 +140,7 @@ def master_dpim(state: StageView, p: int, order: int, forces: ForceEvaluator, pr
                  Solvers(factory=factory, pinv=ctx.Kpinv if ctx.deflated is None else None, deflated=ctx.deflated,
                          backend=state.backend),
                  state.counters, DPIMTolerances(resonance=state.tol.resonance, twin=state.scene.degeneracy_tolerance,
-                                                coupling=state.tol.coupling))
+                                                coupling=state.tol.coupling), rotations=rotation_mask(state.dirs))
     res = model.parametrise(state.phi[:, p], float(state.omega[p]), order, probe=probe, master=p,
                             progress=lambda k: state.progress.bar(k - 1, order - 1, f"DPIM mode {p}"))
     flag = spectrum_flag(state, p, order)
@@ -208,7 +209,8 @@ def backbone_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: Ste
                     state.progress.message(f"backbone of master mode {p} failed: {exc}")
                     out[p] = failed_backbone(spec, probe, exc)
                     continue
-                fallback = step_amplitude(state.phi[:, p], state.policy, length)
+                fallback = step_amplitude(state.phi[:, p], state.policy, length, translation_mask(state.dirs),
+                                          rotation_mask(state.dirs))  # the master's STEP amplitude
                 block = backbone_report(res, spec, wmax, probe=probe, fallback=fallback)
                 block = force_accuracy(block, records.get(p), state.policy.tolerance)
                 out[p] = kept_backbone(p, res, no_manifold(block, records.get(p)))

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from stepnf.nf.diagnostics import overflow_is_numerical
+from stepnf.nf.diagnostics import overflow_is_numerical, unresolved_flags
 from stepnf.nf.gamma import gamma_scale
 from stepnf.nf.manifold_checks import rigid_flags, twin_flags
 from stepnf.pipeline.context import full_order_context
 from stepnf.pipeline.master import MasterData, master_data, mode_record
 from stepnf.pipeline.apply_method import factorises, run_method
+from stepnf.pipeline.conservative import non_conservative_flags
 from stepnf.pipeline.prefetch import prefetch_deflated
 from stepnf.io.results import ModeResult
 from stepnf.pipeline.outputs import Evaluations, RunContext, RunModel, RunModes, StepTerms
@@ -35,7 +36,9 @@ def evaluators_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: S
     the master and the method.
     The methods that factorise run last (module docstring); their place in each mode's results is kept.
     Last, every method of a master that has no single-mode manifold (a driven degenerate twin or rigid
-    mode: :func:`manifold_flags`) gets its flag, which makes T n/a in the table (:mod:`stepnf.flags`).
+    mode: :func:`manifold_flags`) gets its flag, which makes T n/a in the table (:mod:`stepnf.flags`); a model
+    with rotation dofs, eight forces per master more: whether its force is a gradient
+    (:func:`stepnf.pipeline.conservative.non_conservative_flags`).
     """
     adapter = model.adapter
     scales = adapter.shell_scales()
@@ -81,6 +84,8 @@ def evaluators_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: S
             flags = manifold_flags(state, d)
             for r in records[d.p].methods.values():
                 r.flags += [dict(f) for f in flags]
+            where.update(method="(potential check)")
+            records[d.p].flags += non_conservative_flags(state, d)  # a shell's force that is not a gradient
     return Evaluations(records_in_order, scales, gscale, no_gamma, Gv)
 
 
@@ -90,7 +95,8 @@ def manifold_flags(state: StageView, d: MasterData) -> list[dict]:
     master gets them (T n/a in the table, no validity range for the backbone)."""
     return (twin_flags(d.p, d.st, state.phi, d.twins, state.M, state.tol, state.labels)
             + rigid_flags(d.p, d.st, state.basis.rigid, state.M, state.tol,
-                          declared=state.scene.rigid_modes is not None))
+                          declared=state.scene.rigid_modes is not None)
+            + unresolved_flags(d.p, state.modes.flags))  # its eigenvalue beyond reach (stage modes)
 
 
 def free_eigen_factorisation(state: StageView) -> None:

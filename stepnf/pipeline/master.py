@@ -73,5 +73,7 @@ def mode_record(state: StageView, d: MasterData) -> ModeResult:
     if st is not None:
         rec.step = {"amplitude": st.q, "check_amplitude": st.q_check, "error_G": st.error_G,
                     "error_h": st.error_h}
+        if st.amplitudes:  # a force that is not an exact cubic: the third amplitude and the observed rates
+            rec.step.update(amplitudes=list(st.amplitudes), rate_G=st.rate_G, rate_h=st.rate_h)
         rec.flags += st.flags
     return rec

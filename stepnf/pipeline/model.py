@@ -6,7 +6,8 @@ from typing import Any
 from stepnf.errors import SceneError
 from stepnf.linalg.factorization import choose_backend
 from stepnf.linalg.modal_analysis import rigid_body_fields
-from stepnf.nf.diagnostics import check_conditioning, conditioning_ratio, smooth_eigenvalue
+from stepnf.nf.diagnostics import check_conditioning, smooth_field
+from stepnf.nf.roundoff import eigenvalue_roundoff
 from stepnf.pipeline.outputs import RunContext, RunModel
 from stepnf.pipeline.plan import check_rigid_count
 from stepnf.pipeline.step import step_policy
@@ -62,9 +63,12 @@ def model_stage(ctx: RunContext, adapter: Any, *, survey: bool = False) -> RunMo
     X, dirs = adapter.dof_coordinates(), adapter.dof_directions()
     candidates = rigid_body_fields(X, dirs) if X is not None and dirs is not None else None
     check_rigid_count(scene, n)
-    smooth = smooth_eigenvalue(K, M, X, dirs)  # refuse a hopelessly ill-conditioned model before solving
-    if smooth is not None:
-        check_conditioning(conditioning_ratio(smooth, K, M))
+    sm = smooth_field(K, M, X, dirs)  # refuse a model whose smoothest field is beyond reach before solving
+    smooth = None if sm is None else sm[0]
+    if sm is not None:
+        check_conditioning(float(eigenvalue_roundoff(K, sm[1][:, None], [sm[0]])[0]),
+                           what="model stage, before the eigen-solve: the smoothest field's eigenvalue (its Ritz "
+                                "value bounds the fundamental from above)")
     length = forces = None
     if not survey:
         length = scene.thickness if scene.thickness is not None else adapter.characteristic_length()

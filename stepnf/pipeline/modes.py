@@ -14,6 +14,7 @@ from stepnf.methods import DNF
 from stepnf.pipeline.plan import check_elastic_modes, check_mechanism, resolve_masters
 from stepnf.pipeline.outputs import RunContext, RunModel, RunModes
 from stepnf.pipeline.state import StageView
+from stepnf.plugin.dofs import translations_only
 
 
 class ModeLabels:
@@ -125,14 +126,17 @@ def modes_stage(ctx: RunContext, model: RunModel) -> RunModes:
                                first_batch=first_batch(state))
     check_elastic_modes(scene, basis)
     check_mechanism(scene, adapter, basis)
-    orient_degenerate(basis, M, probe_vector(model.X, model.dirs, model.n))  # the same twins whatever the solver
+    # the same twins whatever the solver: a probe on the translations (a shell's rotations are no displacements,
+    # so its pairs turn as a solid model's of the same structure do)
+    orient_degenerate(basis, M, translations_only(probe_vector(model.X, model.dirs, model.n), model.dirs))
     labels.cache.clear()
     names = labels.of(basis)
     masters = resolve_masters(scene, names, basis.n_elastic, complete=True)
     assert masters is not None
-    flags = conditioning_flags(basis, K, M, model.smooth)
+    flags = conditioning_flags(basis, K, model.smooth, masters)  # each mode's own bound; masters beyond: n/a
     if scene.rigid_modes is None:  # a count the user gave is theirs to keep
-        for fl in soft_mode_flags(basis.rigid_eigenvalues, lambda_scale(K, M), scene.rigid_tolerance):
+        for fl in soft_mode_flags(basis.rigid_eigenvalues, lambda_scale(K, M), scene.rigid_tolerance,
+                                  rigid=basis.rigid, K=K):
             # stacklevel 3: reported where stepnf.pipeline.run starts the run (_compute), as before the split
             warnings.warn(fl["message"], ModelWarning, stacklevel=3)
             flags.append(fl)

@@ -38,6 +38,7 @@ from stepnf.pipeline.master import MasterData
 from stepnf.pipeline.state import StageView
 from stepnf.step.manifold_probe import FRACTIONS, manifold_probe
 from stepnf.step.procedure import MasterStep, targeted_steps
+from stepnf.plugin.dofs import bounded_scale, rotation_mask, translation_mask
 
 #: largest factor by which an automatic STEP amplitude is raised
 MAX_FACTOR = 200.0
@@ -47,20 +48,22 @@ MAX_EXTENT = 0.1
 Rerun = Callable[[MasterStep], tuple[MethodResult, np.ndarray]]
 
 
-def raise_factor(roundoff: float, tolerance: float, q: float, phi: np.ndarray, X: np.ndarray | None) -> float:
+def raise_factor(roundoff: float, tolerance: float, q: float, phi: np.ndarray, X: np.ndarray | None,
+                 D: np.ndarray | None = None) -> float:
     """The factor of the STEP amplitude that brings ``roundoff`` (relative, falling as ``1 / q^2``) to
-    ``tolerance``, within :data:`MAX_FACTOR` and :data:`MAX_EXTENT`; 1 when nothing is gained (< 2)."""
+    ``tolerance``, within :data:`MAX_FACTOR` and :data:`MAX_EXTENT` (of the translations, dof directions
+    ``D``), and keeping the largest rotation (a shell's) within :data:`~stepnf.plugin.dofs.MAX_ROTATION`
+    (:func:`~stepnf.plugin.dofs.bounded_scale`);
+    1 when nothing is gained (< 2)."""
     if not np.isfinite(roundoff):
         k = MAX_FACTOR
     elif roundoff > tolerance > 0:
         k = min(float(np.sqrt(roundoff / tolerance)), MAX_FACTOR)
     else:
         return 1.0
-    if X is not None and len(X):
-        size = float(np.linalg.norm(np.ptp(np.asarray(X, dtype=float), axis=0)))
-        peak = q * float(np.abs(phi).max())
-        if size > 0 and peak > 0:
-            k = min(k, MAX_EXTENT * size / peak)
+    size = float(np.linalg.norm(np.ptp(np.asarray(X, dtype=float), axis=0))) if X is not None and len(X) else 0.0
+    k = min(k, bounded_scale(q * phi, MAX_EXTENT * size if size > 0 else np.inf, translation_mask(D),
+                             rotation_mask(D)))
     return k if k >= 2.0 else 1.0
 
 
@@ -75,19 +78,19 @@ def raised_dnf(state: StageView, d: MasterData, r: MethodResult, rerun: Rerun) -
     """``r`` (master ``d.p``'s DNF), or DNF at a raised STEP amplitude, or DNF along the quadratic manifold
     (module docstring), whichever has the smallest ``T_error``. The one kept carries
     ``extra["step_amplitude"]`` (modal) and the flags of what was done."""
-    roundoff = r.extra.get("roundoff") if isinstance(r.extra, dict) else None
+    roundoff = amplitude_part(r, r.extra.get("roundoff")) if isinstance(r.extra, dict) else None
     st, policy = d.st, state.policy
     if (roundoff is None or st is None or state.model.forces is None or policy.method == "tangent"
             or not roundoff > policy.tolerance):
         return r
-    k = raise_factor(float(roundoff), policy.tolerance, st.q, d.phi, state.X) if may_raise(state) else 1.0
+    k = raise_factor(float(roundoff), policy.tolerance, st.q, d.phi, state.X, state.dirs) if may_raise(state) else 1.0
     if k <= 1.0:  # an amplitude the scene fixed (or nothing to gain): the manifold at that amplitude
         r.extra["step_amplitude"] = float(st.q)
         return probed_dnf(state, d, r, d.y, st, r, rerun)
     with state.progress.stage("step_raise", f"STEP again for mode {d.p} at {k:.3g} x the amplitude "
                                             f"(rounding leaves T about {min(roundoff, 99.0):.1e} relative)"):
         st2 = targeted_steps(state.model.forces, state.K, d.phi[:, None], np.array([k * st.q]), policy, [d.p],
-                             plan=f"raised{d.p}")[0]
+                             plan=f"raised{d.p}", digits=getattr(state.adapter, "force_digits", None))[0]
     r2, y2 = rerun(st2)
     e1 = r.T_error if r.T_error is not None else np.inf
     e2 = r2.T_error if r2.T_error is not None else np.inf
@@ -99,9 +102,18 @@ def raised_dnf(state: StageView, d: MasterData, r: MethodResult, rerun: Rerun) -
                 f"STEP again at {st2.q:.3e} ({k:.3g} x) gives {r2.T:+.6e} (error up to {e2:.1e})")
     for res in {id(best): best, id(r2): r2}.values():
         res.flags.append(dict(flag))
-    if min(e1, e2) <= policy.tolerance:
+    if min(amplitude_part(r, e1), amplitude_part(r2, e2)) <= policy.tolerance:
         return best
     return probed_dnf(state, d, r2, y2, st2, best, rerun)  # y and B of the raised STEP: its Gv has more digits
+
+
+def amplitude_part(r: MethodResult, err: float | None) -> float | None:
+    """``err`` (a relative bound of ``r.T``) without the part of the master's own eigenvalue error
+    (``extra["roundoff_dT_lambda"]``, :func:`stepnf.nf.roundoff.eigenvalue_part`): what a larger STEP
+    amplitude or the manifold can reduce."""
+    if err is None or not np.isfinite(err) or r.T == 0 or not np.isfinite(r.T):
+        return err
+    return max(float(err) - float(r.extra.get("roundoff_dT_lambda", 0.0)) / abs(r.T), 0.0)
 
 
 def probed_dnf(state: StageView, d: MasterData, r: MethodResult, y: np.ndarray, st: MasterStep,

@@ -7,6 +7,7 @@ import numpy as np
 
 from stepnf.flags import new_flag
 from stepnf.plugin.adapter import SolverAdapter
+from stepnf.plugin.dofs import rotation_mask, translation_mask
 from stepnf.nf.diagnostics import inverse_mass_norm2
 from stepnf.errors import SceneError
 from stepnf.nf.evaluators import retained_set
@@ -38,10 +39,12 @@ def step_stage(ctx: RunContext, model: RunModel, modes: RunModes) -> StepTerms:
     Returns :class:`StepTerms`: master -> :class:`~stepnf.step.procedure.MasterStep`, the
     :class:`~stepnf.step.procedure.FullStep` (or None) and its modes, and the run flags (no characteristic
     length, full STEP). Forces of an interrupted run are reused from the checkpoint (``model.forces``).
-    Amplitudes are relative to the scene's thickness or the adapter's characteristic length (``model.length``).
+    Amplitudes are relative to the scene's thickness or the adapter's characteristic length (``model.length``),
+    measured on the translations; the rotations of a shell's fields are bounded on their own
+    (:data:`~stepnf.plugin.dofs.MAX_ROTATION`).
     """
     scene, state = ctx.scene, StageView(ctx, model, modes)
-    mask = np.asarray(model.dirs) < 3 if model.dirs is not None else None
+    mask = translation_mask(model.dirs)
     flags: list[dict] = []
     if model.length is None and model.policy.amplitude is None:
         flags.append(new_flag("no_length", message="the model gives no characteristic length (no dof "
@@ -62,7 +65,8 @@ def targeted_stage(state: StageView, forces: ForceEvaluator, length: float | Non
                    mask: np.ndarray | None) -> dict[int, MasterStep]:
     """Two force evaluations per master (four with the amplitude check), or tangents: master -> its STEP."""
     policy, masters, Phi = state.policy, state.masters, state.phi
-    qs = np.array([step_amplitude(Phi[:, p], policy, length, mask) for p in masters])
+    rot = rotation_mask(state.dirs)
+    qs = np.array([step_amplitude(Phi[:, p], policy, length, mask, rot) for p in masters])
     per = 4 if policy.check else 2
     steps: dict[int, MasterStep] = {}
     if policy.method == "tangent":
@@ -72,7 +76,8 @@ def targeted_stage(state: StageView, forces: ForceEvaluator, length: float | Non
                 steps[st.p] = st
     else:
         with state.progress.stage("step", f"STEP (targeted): {len(masters) * per} force evaluations"):
-            for st in targeted_steps(forces, state.K, Phi[:, masters], qs, policy, masters):
+            for st in targeted_steps(forces, state.K, Phi[:, masters], qs, policy, masters,
+                                     digits=getattr(state.adapter, "force_digits", None)):
                 steps[st.p] = st
     return steps
 
@@ -82,7 +87,8 @@ def full_plan_stage(state: StageView, forces: ForceEvaluator, length: float | No
     """The full STEP over the retained modes up to the highest master, and those modes."""
     Phi, masters, progress = state.phi, state.masters, state.progress
     Sfull = retained_set(max(masters), state.n_ret, state.m)
-    qf = np.array([step_amplitude(Phi[:, s], state.policy, length, mask) for s in Sfull])
+    rot = rotation_mask(state.dirs)
+    qf = np.array([step_amplitude(Phi[:, s], state.policy, length, mask, rot) for s in Sfull])
     with progress.stage("step_full", f"STEP (full plan) over {len(Sfull)} modes"):
         # the M^-1 norm of each master's G(phi_p, phi_p), for the modal-truncation flag
         full = full_step(forces, state.K, Phi[:, Sfull], qf, state.policy, modes=Sfull,

@@ -6,6 +6,8 @@
     K and M built once, on first use.
 :func:`boundary_conditions`, :func:`fixed_dofs`, :class:`FreeDofs`, :data:`BOUNDARY_KEY` (:mod:`.boundary`)
     one vocabulary of boundary conditions for every FE adapter.
+:func:`translation_mask`, :func:`rotation_mask`, :func:`node_vectors` (:mod:`.dofs`)
+    translations and rotations among the dofs (a shell's ``rx ry rz``): what measures displacements reads.
 :class:`Material`, :func:`assign_cells`, :data:`MATERIALS_KEY` (:mod:`.materials`)
     isotropic and orthotropic materials per named cell set.
 :class:`Key`, :class:`Schema`, :class:`FromScene` (:mod:`stepnf.keys.schema`)
@@ -33,6 +35,7 @@ if TYPE_CHECKING:
     from stepnf.keys.schema import FromScene, Key, Schema
     from stepnf.plugin.adapter import SolverAdapter
     from stepnf.plugin.boundary import BOUNDARY_KEY, FreeDofs, boundary_conditions, fixed_dofs
+    from stepnf.plugin.dofs import node_vectors, rotation_mask, translation_mask
     from stepnf.plugin.lazy_matrices import LazyMatrices
     from stepnf.plugin.materials import MATERIALS_KEY, Material, assign_cells
     from stepnf.plugin.modal_model import ModalModel
@@ -42,6 +45,7 @@ if TYPE_CHECKING:
 _NAMES = {"SolverAdapter": "adapter", "LazyMatrices": "lazy_matrices", "ModalModel": "modal_model",
           "OutputMesh": "output_mesh", "ShellScales": "shell_scales",
           "BOUNDARY_KEY": "boundary", "FreeDofs": "boundary", "boundary_conditions": "boundary", "fixed_dofs": "boundary",
+          "translation_mask": "dofs", "rotation_mask": "dofs", "node_vectors": "dofs",
           "MATERIALS_KEY": "materials", "Material": "materials", "assign_cells": "materials",
           "Key": "stepnf.keys.schema", "Schema": "stepnf.keys.schema", "FromScene": "stepnf.keys.schema"}
 __getattr__ = lazy_exports(__name__, _NAMES, globals())

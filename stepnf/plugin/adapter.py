@@ -171,7 +171,10 @@ class SolverAdapter(FromScene):
         return None
 
     def dof_directions(self) -> np.ndarray | None:
-        """Direction code (n,) of each dof: index into :data:`DIRECTIONS`, or ``None``."""
+        """Direction code (n,) of each dof: index into :data:`DIRECTIONS`, or ``None``.
+
+        Codes 0-2 are translations (model length units), 3-5 rotations (radians, a shell's nodes); stepnf
+        measures displacements on the translations only (:mod:`stepnf.plugin.dofs`)."""
         return None
 
     def characteristic_length(self) -> float | None:

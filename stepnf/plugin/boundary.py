@@ -10,6 +10,11 @@ A scene gives them as an array of tables in ``[model]``::
     box = [[0.0, -1.0, -1.0], [0.0, 1.0, 1.0]]   # or: the nodes inside this box (corners, model units)
     dofs = ["uz"]
 
+A shell's nodes have rotational dofs too (``rx ry rz``): ``dofs = ["ux", "uy", "uz", "rx", "ry", "rz"]``
+clamps an edge (the default there), the translations alone simply support it. A rotation named
+for a solver whose nodes have translations only (a solid) is a :class:`SceneError` naming the key
+(exit 2): an adapter accepts rotations by calling :func:`boundary_conditions` with ``rotations=True``.
+
 Only homogeneous conditions exist (the displacement is zero): STEP prescribes
 displacement fields on the free dofs, and the tangent of a zero condition is
 the same condition. An adapter removes the constrained dofs from the dofs it
@@ -23,9 +28,9 @@ set, a MED group; the adapter reads them into ``{name: node indices}`` and
 nodes within :func:`box_tolerance` of it (a round-off margin, so that
 ``x0 = x1 = 0`` picks the nodes of the plane ``x = 0``).
 
-Dofs are numbered node-major (dof ``3 i + d`` is direction ``d`` of node ``i``,
-``d`` in 0..2 for ux, uy, uz), as in :mod:`stepnf.plugin.adapter`'s
-:data:`~stepnf.plugin.adapter.DIRECTIONS`.
+Dofs are numbered node-major (dof ``k i + d`` is direction ``d`` of node ``i``, ``k = 3`` dofs per
+node for a solid, ``d`` in 0..2 for ux, uy, uz; ``k = 6`` for a shell, 3..5 for rx, ry, rz), as in
+:mod:`stepnf.plugin.adapter`'s :data:`~stepnf.plugin.adapter.DIRECTIONS`.
 """
 from __future__ import annotations
 
@@ -39,8 +44,9 @@ import scipy.sparse as sp
 from stepnf.keys.checks import check_number, describe_value
 from stepnf.errors import SceneError, allowed
 from stepnf.keys.schema import Key, Schema
+from stepnf.plugin.adapter import DIRECTIONS
 
-#: Dof names a condition may fix (translations of a solid's nodes).
+#: Dof names a condition may fix on a solid (the translations of its nodes).
 DOF_NAMES = ("ux", "uy", "uz")
 #: Coordinates of a box corner: lengths in model units, as the geometry keys allow.
 COORDINATE_LIMIT = 1e12
@@ -68,8 +74,8 @@ BOUNDARY = Schema(
         what="a set name"),
     Key("box", "custom", "the nodes inside the box [[x0, y0, z0], [x1, y1, z1]] (instead of a set)",
         check_value=_box, what="[[x0, y0, z0], [x1, y1, z1]]"),
-    Key("dofs", "list", "the fixed dofs (default: every translation, a clamp)", default=list(DOF_NAMES),
-        choices=DOF_NAMES),
+    Key("dofs", "list", "the fixed dofs (default: every dof of the node, a clamp: ux, uy, uz on a solid, and rx, "
+        "ry, rz on a shell)", default=list(DOF_NAMES), choices=DIRECTIONS),
 )
 #: The ``boundary`` key every FE adapter includes in its ``[model]`` keys.
 BOUNDARY_KEY = Key("boundary", "tables", "zero-displacement conditions on node sets or boxes ([[model.boundary]])",
@@ -81,7 +87,7 @@ class BoundaryCondition:
     """One homogeneous condition: the nodes of ``set`` (or inside ``box``) have ``dofs`` fixed at zero.
 
     ``where`` names its table in messages (``"model.boundary[0]"``); ``dofs`` are direction codes
-    (0, 1, 2 for ux, uy, uz).
+    (0, 1, 2 for ux, uy, uz; 3, 4, 5 for a shell's rx, ry, rz).
     """
 
     where: str
@@ -91,15 +97,26 @@ class BoundaryCondition:
 
 
 def boundary_conditions(entries: Sequence[Mapping[str, Any]] | None, file: str | Path | None,
-                        where: str = "model.boundary") -> list[BoundaryCondition]:
+                        where: str = "model.boundary", *, rotations: bool = False) -> list[BoundaryCondition]:
     """The conditions of ``[[model.boundary]]`` tables already checked by :data:`BOUNDARY_KEY`
-    (each names exactly one of ``set`` and ``box``)."""
+    (each names exactly one of ``set`` and ``box``).
+
+    ``rotations``: the solver's nodes have rotational dofs (a shell: ``dofs`` may name rx, ry, rz, and
+    the default clamp fixes them too); otherwise (a solid) a rotation is a :class:`SceneError` naming
+    ``<where>[i].dofs[j]``."""
     out = []
+    names = DIRECTIONS if rotations else DOF_NAMES
     for i, e in enumerate(entries or ()):
         key = f"{where}[{i}]"
         if ("set" in e) == ("box" in e):
             raise SceneError(file, key, "give exactly one of set = \"<name>\" or box = [[x0, y0, z0], [x1, y1, z1]]")
-        dofs = tuple(DOF_NAMES.index(d) for d in e.get("dofs", DOF_NAMES))
+        given = e.get("dofs", names)
+        for j, d in enumerate(given):
+            if d not in names:
+                raise SceneError(file, f"{key}.dofs[{j}]", f"{d!r} is a rotation, and this solver's nodes have "
+                                 f"translations only (a solid model, no rotational dofs); expected one of "
+                                 f"{list(DOF_NAMES)}")
+        dofs = tuple(DIRECTIONS.index(d) for d in given)
         out.append(BoundaryCondition(key, tuple(sorted(dofs)), set=e.get("set"), box=e.get("box")))
     return out
 
@@ -141,6 +158,10 @@ def select_nodes(bc: BoundaryCondition, points: np.ndarray, node_sets: Mapping[s
 def fixed_dofs(bcs: Sequence[BoundaryCondition], points: np.ndarray, node_sets: Mapping[str, np.ndarray],
                file: str | Path | None, mesh: str | Path | None = None, dofs_per_node: int = 3) -> np.ndarray:
     """Sorted indices of the node-major dofs (``dofs_per_node i + d``) the conditions fix."""
+    codes = [d for bc in bcs for d in bc.dofs]
+    if codes and max(codes) >= dofs_per_node:
+        raise ValueError(f"a condition fixes direction {DIRECTIONS[max(codes)]}, but the nodes have "
+                         f"{dofs_per_node} dofs ({', '.join(DIRECTIONS[:dofs_per_node])})")
     fixed = [select_nodes(bc, points, node_sets, file, mesh)[:, None] * dofs_per_node + np.asarray(bc.dofs)[None, :]
              for bc in bcs]
     return np.unique(np.concatenate([f.ravel() for f in fixed])) if fixed else np.zeros(0, dtype=np.int64)

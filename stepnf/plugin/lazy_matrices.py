@@ -88,5 +88,8 @@ class LazyMatrices:
         K, M = self._K, self._M
         if not (sp.isspmatrix_csr(K) and sp.isspmatrix_csr(M)) or np.shares_memory(M.indices, K.indices):
             return
-        if K.shape == M.shape and np.array_equal(K.indptr, M.indptr) and np.array_equal(K.indices, M.indices):
+        # canonical (sorted, no duplicates) only: scipy sorts or sums a matrix's index arrays in place when it
+        # needs to, which would scramble the other matrix's entries through the shared arrays
+        if (K.shape == M.shape and K.has_canonical_format and M.has_canonical_format
+                and np.array_equal(K.indptr, M.indptr) and np.array_equal(K.indices, M.indices)):
             self._M = sp.csr_matrix((M.data, K.indices, K.indptr), shape=M.shape)

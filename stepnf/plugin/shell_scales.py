@@ -4,7 +4,13 @@
 * nondimensional frequency ``w_bar = w a^2 sqrt(rho h / D)``, ``D = E h^3 / (12 (1 - nu^2))``;
 * ``Gamma``: coefficient of ``(W_max/h)^2`` in ``w_NL / w = 1 + Gamma (W_max/h)^2``,
   i.e. ``Gamma = T (h / max|phi_w|)^2`` for a mode shape ``phi`` whose largest
-  transverse mid-surface displacement is ``max|phi_w|``.
+  transverse mid-surface displacement is ``max|phi_w|`` (a translation: a shell's
+  rotation dofs, radians, never enter it, :mod:`stepnf.plugin.dofs`).
+
+``h`` is also the length the automatic STEP amplitude is relative to
+(:func:`stepnf.step.procedure.step_amplitude`, through the adapter's
+``characteristic_length``): a shell adapter, whose mid-surface mesh has no
+thickness extent, returns its ``h`` there.
 """
 from __future__ import annotations
 

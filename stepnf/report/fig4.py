@@ -3,10 +3,13 @@
 ``stepnf fig4 STORE [STORE ...] --out DIR`` reads sweep stores (``stepnf
 sweep``), draws for each master mode the von Karman NF curve of Gamma against
 kappa (:mod:`stepnf.report.curves`) with the FE points of every store (3D solid,
-shallow-shell FE, CalculiX...), and writes the table of points (CSV and JSON):
-case, kappa, mode, Gamma of the FE model, Gamma of the von Karman model at the
-same kappa, their difference, and the flags. The summary gives, per mode, the
-largest difference away from internal resonances (points that either model
+DKT shells, shallow-shell FE, CalculiX...), and writes the table of points (CSV
+and JSON): case, kappa, thickness, mode, Gamma of the FE model, Gamma of the von
+Karman model at the same kappa, their difference, and the flags. As the paper
+draws it, a store whose cases span several thicknesses h (the paper's Table 2:
+1, 3 and 5 mm) gives one series per thickness: one marker per store, one colour
+per thickness (grey: near an internal resonance), one legend for the figure.
+The summary gives, per mode, the largest difference away from internal resonances (points that either model
 flags within the resonance tolerance are listed but left out of it).
 """
 from __future__ import annotations
@@ -39,6 +42,7 @@ class Point:
     gamma_vk: float | None = None
     flags_fe: list[str] = field(default_factory=list)
     flags_vk: list[str] = field(default_factory=list)
+    h: float | None = None  # the case's thickness (model.geometry.h, model length unit), None if not stored
 
     @property
     def resonant(self) -> bool:
@@ -67,6 +71,7 @@ def fe_points(store: str | Path, name: str | None = None, method: str = DNF) -> 
         kappa = doc.get("kappa")
         if kappa is None:
             continue
+        h = thickness(doc)
         for m in doc["modes"]:
             r = m["methods"].get(method)
             lab = m.get("label")
@@ -75,8 +80,16 @@ def fe_points(store: str | Path, name: str | None = None, method: str = DNF) -> 
             g = r["gamma"]
             g = float("inf") * (1 if g == "inf" else -1) if isinstance(g, str) else float(g)
             out.append(Point(name or Path(store).stem, cid, float(kappa), (int(lab[0]), int(lab[1])), g,
-                             flags_fe=[f["kind"] for f in r.get("flags", [])]))
+                             flags_fe=[f["kind"] for f in r.get("flags", [])], h=h))
     return out
+
+
+def thickness(doc: dict[str, Any]) -> float | None:
+    """The stored case's shell thickness (its model's ``geometry.h``, model length unit), or ``None``."""
+    model = doc.get("model")
+    geo = model.get("geometry") if isinstance(model, dict) else None
+    h = geo.get("h") if isinstance(geo, dict) else None
+    return float(h) if isinstance(h, (int, float)) and not isinstance(h, bool) and np.isfinite(h) else None
 
 
 def vonkarman_at(points: Sequence[Point], nu: float = 0.3, tol=None) -> None:
@@ -142,18 +155,22 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
     nrow = int(np.ceil(len(modes) / ncol))
     fig, axes = plt.subplots(nrow, ncol, figsize=(5 * ncol, 3.8 * nrow), squeeze=False)
     markers = ["o", "s", "^", "D", "v"]
+    thick = sorted({p.h for p in points if p.h is not None})
+    store_h = {n: sorted({p.h for p in points if p.store == n and p.h is not None}) for n in names}
+    legend: dict[str, Any] = {}
     for ax, mode in zip(axes.ravel(), modes):
         i = curves.row(mode)
-        ax.plot(curves.kappa, curves.plotted(NF, "gamma")[i], "m-", lw=1.5, label="von Karman, NF")
+        legend["von Karman, NF"], = ax.plot(curves.kappa, curves.plotted(NF, "gamma")[i], "m-", lw=1.5)
         for j, n in enumerate(names):
             pts = [p for p in points if p.store == n and p.mode == mode and np.isfinite(p.gamma_fe)]
             pts = [Point(**{**p.__dict__, "kappa": max(p.kappa, lo)}) for p in pts]
-            ok = [p for p in pts if not p.resonant]
+            for label, colour, ok in series(n, j, pts, store_h[n], thick):
+                legend[label], = ax.plot([p.kappa for p in ok], [p.gamma_fe for p in ok], markers[j % 5], mfc="none",
+                                         color=colour)
             rs = [p for p in pts if p.resonant]
-            ax.plot([p.kappa for p in ok], [p.gamma_fe for p in ok], markers[j % 5], mfc="none", label=f"{n}, DNF")
             if rs:
-                ax.plot([p.kappa for p in rs], [p.gamma_fe for p in rs], markers[j % 5], color="0.6",
-                        label=f"{n}, near resonance")
+                legend[f"{n}, near resonance"], = ax.plot([p.kappa for p in rs], [p.gamma_fe for p in rs],
+                                                          markers[j % 5], color="0.6")
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_title(f"mode ({mode[0]},{mode[1]})")
         ax.set_xscale("log")
@@ -163,13 +180,15 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
                                                                              if p.mode == mode]], [2, 98])
         pad = 0.2 * (hi - lo + 1e-3)
         ax.set_ylim(lo - pad, hi + pad)
-        ax.legend(fontsize=7)
     for ax in axes.ravel()[len(modes):]:
         ax.set_visible(False)
     fig.suptitle("Type of nonlinearity: von Karman model (lines) and FE models with DNF (points)")
-    fig.tight_layout()
+    extra = 0.22 * np.ceil(len(legend) / 4) + 0.2  # inches below the panels for the one legend
+    fig.set_size_inches(5 * ncol, 3.8 * nrow + extra)
+    fig.legend(list(legend.values()), list(legend), loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0.0, extra / (3.8 * nrow + extra), 1.0, 1.0))
     png = save_figure(fig, out_dir / "fig4.png", dpi=110)
-    rows = [{"store": p.store, "case": p.case, "kappa": p.kappa, "mode": f"({p.mode[0]},{p.mode[1]})",
+    rows = [{"store": p.store, "case": p.case, "kappa": p.kappa, "h": p.h, "mode": f"({p.mode[0]},{p.mode[1]})",
              "gamma_fe": p.gamma_fe, "gamma_vk": p.gamma_vk, "difference": p.difference,
              "resonant": p.resonant, "flags_fe": ";".join(p.flags_fe), "flags_vk": ";".join(p.flags_vk)}
             for p in points]
@@ -179,7 +198,18 @@ def figure4(stores: Sequence[str | Path], out_dir: str | Path, *, names: Sequenc
     summ = summary(points)
     write_text(out_dir / "fig4_summary.json", json.dumps({"summary": summ, "points": rows}, indent=1, default=str),
                what="summary")
-    return {"summary": summ, "figure": str(png), "table": str(table), "points": len(points)}
+    return {"summary": summ, "figure": str(png), "table": str(table), "points": len(points), "series": list(legend)}
+
+
+def series(name: str, j: int, pts: Sequence[Point], hs: Sequence[float],
+           thick: Sequence[float]) -> list[tuple[str, str, list[Point]]]:
+    """The drawn series of store ``name`` (its ``j``-th, of thicknesses ``hs``; ``thick``: every store's) in one
+    panel: ``(legend label, colour, points)`` of its points away from resonances, one per thickness (its colour
+    the same in every store) when the store spans several, else one."""
+    ok = [p for p in pts if not p.resonant]
+    if len(hs) < 2:
+        return [(f"{name}, DNF", f"C{(len(thick) + j) % 10}", ok)]
+    return [(f"{name}, h = {h:g}", f"C{thick.index(h) % 10}", [p for p in ok if p.h == h]) for h in hs]
 
 
 def format_summary(summ: dict[str, dict[str, Any]]) -> str:

@@ -18,6 +18,8 @@ def plot_mode_shapes(result: RunResult, path: str | Path) -> Path | None:
     Needs the adapter's dof coordinates and directions (FE models); returns
     ``None`` (no figure) for models without them, or whose transverse dofs do not
     span a plane seen from above (fewer than three positions, all on one line).
+    Only the ``uz`` translations are drawn and normalised (by their own largest value): a shell's rotation
+    dofs (``rx ry rz``, radians), even a mode's largest entry, never scale the figure.
     """
     fig = mode_shapes_figure(result)
     return None if fig is None else save_figure(fig, path, dpi=110)

@@ -18,9 +18,13 @@ two more at a second amplitude give the error estimate.
 Amplitudes: ``q`` is chosen so that the largest translational displacement of
 ``q phi`` equals ``relative_amplitude`` times the model's characteristic length
 (a shell's thickness), unless the scene gives ``amplitude`` (model length
-units). For an exact cubic f, larger amplitudes only reduce round-off; for a
+units); a model with rotational dofs also keeps the largest rotation of ``q phi``
+at most :data:`~stepnf.plugin.dofs.MAX_ROTATION` radians (rotations are no lengths). For an exact
+cubic f, larger amplitudes only reduce round-off; for a
 solver whose f is not an exact cubic, or prints few digits, the check at
-``check_ratio * q`` measures what the amplitude costs.
+``check_ratio * q`` measures what the amplitude costs; where its change stands above the forces'
+rounding, a third amplitude measures the cubic fit's truncation and Richardson extrapolation removes it
+(:mod:`stepnf.step.truncation`; targeted plan with forces only).
 """
 from __future__ import annotations
 
@@ -32,9 +36,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from stepnf.flags import new_flag
+from stepnf.plugin.dofs import MAX_ROTATION, bounded_scale, peak  # noqa: F401 (MAX_ROTATION re-exported)
 from stepnf.runtime.counters import Counters
 from stepnf.errors import NumericalError, StepnfError
 from stepnf.step.forces import ForceEvaluator
+from stepnf.step.truncation import gh_vectors, refine
 
 
 @dataclass(frozen=True)
@@ -53,18 +59,28 @@ DEFAULT_RELATIVE_AMPLITUDE = 0.5
 STEP_METHODS = ("forces", "tangent")
 
 
+
+
 def step_amplitude(phi: np.ndarray, policy: StepPolicy, length: float | None,
-                   mask: np.ndarray | None = None) -> float:
-    """Scale ``q`` of the field ``q phi`` sent to the solver (see module docstring)."""
-    v = np.abs(phi if mask is None or not mask.any() else phi[mask])
-    peak = float(v.max()) if v.size else 0.0
-    if not peak > 0:
+                   mask: np.ndarray | None = None, rotations: np.ndarray | None = None) -> float:
+    """Scale ``q`` of the field ``q phi`` sent to the solver (see module docstring).
+
+    ``mask`` (bool (n,)): the translation dofs, whose largest entry of ``q phi`` is the target length
+    (``None``, or none set: every dof); ``rotations`` (bool (n,), or ``None``): the rotation dofs (radians),
+    whose largest entry of ``q phi`` is also kept at most :data:`~stepnf.plugin.dofs.MAX_ROTATION`, whatever
+    the target: then ``q = min(target / max|phi_translation|, MAX_ROTATION / max|phi_rotation|)``
+    (:func:`stepnf.plugin.dofs.bounded_scale`).
+    """
+    if mask is not None and not mask.any():
+        mask = None  # no translation dofs: every dof
+    if not peak(phi, mask) > 0 and not (rotations is not None and peak(phi, rotations) > 0):
         raise NumericalError("cannot choose a STEP amplitude for a zero mode shape")
     rel = policy.relative_amplitude if policy.relative_amplitude is not None else DEFAULT_RELATIVE_AMPLITUDE
     target = policy.amplitude if policy.amplitude is not None else rel * (length or 1.0)
     if not target > 0 or not np.isfinite(target):
         raise StepnfError(f"STEP amplitude must be a positive length, got {target!r}")
-    return target / peak
+    # a mode of rotations only (a shell's drilling mode) is bounded by the rotation bound alone
+    return bounded_scale(phi, target, mask, rotations)
 
 
 @dataclass
@@ -90,11 +106,12 @@ class MasterStep:
     #: ``H(phi_p, phi_p, phi_p)`` (n,) and at the check amplitude (for the twins' cubic coupling)
     Hv: np.ndarray | None = None
     Hv_check: np.ndarray | None = None
-
-
-def _gh_vectors(fp: np.ndarray, fm: np.ndarray, Kphi: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray]:
-    """``G(phi, phi)`` and ``H(phi, phi, phi)`` from the forces at ``+-q phi``."""
-    return (fp + fm) / (2.0 * q * q), (fp - fm - 2.0 * q * Kphi) / (2.0 * q ** 3)
+    #: the amplitudes run when the check found the force not an exact cubic (:mod:`stepnf.step.truncation`;
+    #: ``q`` and ``q_check`` are then those whose rounding the kept values carry), and the observed rates
+    #: of the changes of ``Gv`` and ``h`` (2: the cubic fit's truncation); empty, None otherwise
+    amplitudes: tuple[float, ...] = ()
+    rate_G: float | None = None
+    rate_h: float | None = None
 
 
 def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: float,
@@ -115,10 +132,15 @@ def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: fl
 
 
 def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: np.ndarray,
-                   policy: StepPolicy, modes: list[int] | None = None, plan: str = "targeted") -> list[MasterStep]:
+                   policy: StepPolicy, modes: list[int] | None = None, plan: str = "targeted",
+                   digits: int | None = None) -> list[MasterStep]:
     """:func:`targeted_step` for several master modes (columns of ``Phi``) in ONE batch of fields.
 
     An external solver then runs once for the whole plan (``plan``: its name in the run's checkpoint).
+    With the check amplitude, a master whose two amplitudes differ by more than the forces' rounding
+    (``digits``: the solver's printed force digits, None: double precision) is a force that is not an exact
+    cubic: a third amplitude measures the cubic fit's truncation and the values kept balance it against
+    the rounding (:mod:`stepnf.step.truncation`, one more batch).
     """
     k = Phi.shape[1]
     modes = list(range(k)) if modes is None else list(modes)
@@ -131,32 +153,40 @@ def targeted_steps(forces: ForceEvaluator, K: sp.spmatrix, Phi: np.ndarray, q: n
             q2 = policy.check_ratio * qj
             fields += [q2 * phi, -q2 * phi]
     F = forces(np.stack(fields), plan=plan)
-    out = []
+    out, Kphis = [], []
     for j in range(k):
         phi, qj, p = Phi[:, j], float(q[j]), modes[j]
         Kphi = K @ phi
+        Kphis.append(Kphi)
         Fj = F[per * j: per * (j + 1)]
-        Gv, Hv = _gh_vectors(Fj[0], Fj[1], Kphi, qj)
+        Gv, Hv = gh_vectors(Fj[0], Fj[1], Kphi, qj)
         res = MasterStep(p=p, q=qj, Gv=Gv, h=float(phi @ Hv), Hv=Hv)
-        h = res.h
         if policy.check:
             q2 = policy.check_ratio * qj
-            Gv2, res.Hv_check = _gh_vectors(Fj[2], Fj[3], Kphi, q2)
-            h2 = float(phi @ res.Hv_check)
-            lin = max(float(np.linalg.norm(Kphi)), 1e-300)
-            w2 = max(float(phi @ Kphi), 1e-300)
-            res.q_check, res.Gv_check, res.h_check = q2, Gv2, h2
-            res.error_G = qj * float(np.linalg.norm(Gv - Gv2)) / lin
-            res.error_h = max(_relative(h, h2), qj * qj * abs(h - h2) / w2)
-            for name, err in (("G", res.error_G), ("h", res.error_h)):
-                if not np.isfinite(err) or err > policy.tolerance:
-                    res.flags.append(new_flag(
-                        "step_accuracy",
-                        message=f"STEP {name} of mode {p} changes by {err:.2e} (relative) between "
-                                f"amplitudes {qj:.3e} and {q2:.3e}; tolerance {policy.tolerance:.1e}",
-                        mode=p, value=float(err),
-                    ))
+            res.Gv_check, res.Hv_check = gh_vectors(Fj[2], Fj[3], Kphi, q2)
+            res.q_check, res.h_check = q2, float(phi @ res.Hv_check)
         out.append(res)
+    if not policy.check:
+        return out
+    if 0.0 < policy.check_ratio < 1.0:
+        refine(forces, K, Phi, out, policy.check_ratio, digits, policy.tolerance, plan, np.column_stack(Kphis))
+    for j, res in enumerate(out):
+        phi, Kphi = Phi[:, j], Kphis[j]
+        qj, p, h, h2, q2 = float(q[j]), res.p, res.h, res.h_check, float(res.q_check)
+        lin = max(float(np.linalg.norm(Kphi)), 1e-300)
+        w2 = max(float(phi @ Kphi), 1e-300)
+        res.error_G = qj * float(np.linalg.norm(res.Gv - res.Gv_check)) / lin
+        res.error_h = max(_relative(h, h2), qj * qj * abs(h - h2) / w2)
+        if any(f.get("kind") == "step_unconverged" for f in res.flags):
+            continue  # step_unconverged says it (a smaller amplitude, not a larger one)
+        for name, err in (("G", res.error_G), ("h", res.error_h)):
+            if not np.isfinite(err) or err > policy.tolerance:
+                res.flags.append(new_flag(
+                    "step_accuracy",
+                    message=f"STEP {name} of mode {p} changes by {err:.2e} (relative) between "
+                            f"amplitudes {res.q:.3e} and {q2:.3e}; tolerance {policy.tolerance:.1e}",
+                    mode=p, value=float(err),
+                ))
     return out
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from stepnf.plugin.adapter import DIRECTIONS, SolverAdapter
+from stepnf.plugin.dofs import MAX_ROTATION, rotation_mask
 
 
 @dataclass(frozen=True)
@@ -79,7 +80,8 @@ def random_fields(adapter: SolverAdapter, k: int, seed: int = 1, per_direction: 
     coefficients for every direction (:meth:`~stepnf.plugin.adapter.SolverAdapter.dof_directions`; without
     directions, dof ``i`` takes those of ``i % 3``, a node-major guess). The same polynomial in every
     direction moves every node along (1, 1, 1): every bar of a truss then stretches along one line, and a
-    non-conservative force can look symmetric (:func:`check_conservative_force` asks for them)."""
+    non-conservative force can look symmetric (:func:`check_conservative_force` asks for them). Rotation
+    dofs (a shell's: :func:`stepnf.plugin.dofs.rotation_mask`) are scaled on their own (:func:`scaled`)."""
     rng = np.random.default_rng(seed)
     n = adapter.n_dofs
     L = adapter.characteristic_length() or 1.0
@@ -91,16 +93,33 @@ def random_fields(adapter: SolverAdapter, k: int, seed: int = 1, per_direction: 
         span = max(np.ptp(X, axis=0).max(), 1e-300)
         basis = np.column_stack([np.ones(n), c / span, (c / span) ** 2])
         if not per_direction:
-            return scaled(rng.standard_normal((k, basis.shape[1])) @ basis.T, L)
+            return scaled(rng.standard_normal((k, basis.shape[1])) @ basis.T, L, adapter.dof_directions())
         dirs = adapter.dof_directions()
         code = np.arange(n) % 3
         if dirs is not None and np.shape(dirs) == (n,):  # else check_dof_directions reports it
             code = np.clip(np.nan_to_num(np.asarray(dirs, dtype=float)), 0, len(DIRECTIONS) - 1).astype(int)
         coef = rng.standard_normal((k, len(DIRECTIONS), basis.shape[1]))
         U = np.einsum("kib,ib->ki", coef[:, code, :], basis)
-    return scaled(U, L)
+    return scaled(U, L, adapter.dof_directions())
 
 
-def scaled(U: np.ndarray, L: float) -> np.ndarray:
-    """Each row of ``U`` scaled to a largest entry of 1% of the length ``L``."""
-    return 1e-2 * L * U / np.max(np.abs(U), axis=1, keepdims=True)
+#: Largest rotation (radians) of a random field: the checks send up to ten times one
+#: (:func:`~stepnf.testing.harness.check_conservative_force`, ``check_step_equals_intrusive``), which then
+#: rotates by at most STEP's bound :data:`stepnf.plugin.dofs.MAX_ROTATION` (0.03 rad). A length is no
+#: angle: 1% of a length in millimetres is radians by the dozen.
+PROBE_ROTATION = MAX_ROTATION / 10
+
+
+def scaled(U: np.ndarray, L: float, directions=None) -> np.ndarray:
+    """Each row of ``U`` scaled to a largest entry of 1% of the length ``L``; with ``directions`` (one
+    code per dof) that include rotations, its translations so and its rotations, on their own, to a
+    largest of :data:`PROBE_ROTATION` radians."""
+    n = np.shape(U)[1]
+    rot = rotation_mask(directions) if directions is not None and np.shape(directions) == (n,) else None
+    if rot is None:
+        return 1e-2 * L * U / np.max(np.abs(U), axis=1, keepdims=True)
+    out = np.array(U, dtype=float)
+    for sel, size in ((~rot, 1e-2 * L), (rot, PROBE_ROTATION)):
+        if sel.any():
+            out[:, sel] = size * U[:, sel] / np.maximum(np.max(np.abs(U[:, sel]), axis=1, keepdims=True), 1e-300)
+    return out

@@ -151,7 +151,9 @@ def check_conservative_force(adapter: SolverAdapter, tol: Tolerances) -> None:
     Only the nonlinear part ``J - K`` is compared (K is symmetric by :func:`check_symmetric_matrices`
     and would hide an asymmetry that only the nonlinear terms carry, as with a wrong stress measure).
     The field has amplitude 0.1 length (so the nonlinear share of J is ~0.1 for a quadratic f), the
-    probes the same, the steps 0.1 and 0.05 of that (see :meth:`Tolerances.conservative_tolerance`).
+    probes the same, the steps 0.1 and 0.05 of that (see :meth:`Tolerances.conservative_tolerance`); a
+    shell's rotations at most :data:`~stepnf.step.procedure.MAX_ROTATION` (0.03 rad: ten times
+    :data:`~stepnf.testing.base.PROBE_ROTATION`), as STEP's.
     An adapter that prints its forces rounded (``force_digits``, CalculiX: 7) is allowed, on top of that
     tolerance, the bound of what the rounding can make of each pair (:func:`_asymmetry`; measured on
     coarse CalculiX caps: asymmetry 2e-6 .. 5e-5, allowed 3e-4 .. 3e-3, the same caps in FEniCSx 1e-13,

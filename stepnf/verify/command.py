@@ -1,7 +1,8 @@
 """``stepnf verify SCENE``: the DPIM backbones against periodic orbits of the full model.
 
 For each master mode and a few amplitudes ``A`` of the master coordinate ``q = phi^T M x``
-(default: three, evenly up to the backbone's validity limit), the full model's orbit is computed
+(default: three, evenly up to the backbone's validity limit, capped at W_max/h = 2 with a thickness:
+:mod:`stepnf.verify.deflection`), the full model's orbit is computed
 independently of the parametrisation:
 
 * **shooting** (:class:`stepnf.verify.periodic.Shooting`: Newton on the period and the initial state,
@@ -31,7 +32,9 @@ import numpy as np
 
 from stepnf.keys.backbone import AMPLITUDE_RANGE
 from stepnf.errors import AdapterError, NumericalError, SceneError
+from stepnf.plugin.dofs import peak, translation_mask
 from stepnf.verify.clock import OrbitClock
+from stepnf.verify.deflection import cap_amplitudes
 
 #: Largest model (dofs) checked by shooting; larger ones by time integration.
 SHOOTING_LIMIT = 300
@@ -122,7 +125,7 @@ class Check:
     error_estimate: float | None = None  # bound on omega_check's error, relative (integration only)
     seconds: float = 0.0
     work: dict | None = None
-    max_displacement: float | None = None  # largest |x| at the orbit's start, at rest (W_max; length units)
+    max_displacement: float | None = None  # largest |x| at the orbit's start, at rest, translations (W_max; length)
 
     @property
     def difference(self) -> float:
@@ -132,14 +135,16 @@ class Check:
 
 def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float, *,
                 tangent: Callable | None = None, samples: int = 32, forces: Callable | None = None,
-                integrator: str = "auto", w_max: float | None = None, per_period: int | None = None) -> Check:
+                integrator: str = "auto", w_max: float | None = None, per_period: int | None = None,
+                mask: np.ndarray | None = None) -> Check:
     """The brake orbit of amplitude ``A`` by shooting, from the parametrisation's guess.
 
     ``forces`` the batched internal forces (the implicit integrator sends its stages in one call);
     ``integrator`` as :class:`stepnf.verify.periodic.Shooting` (``"auto"``: implicit for a stiff model); ``w_max``
     the model's highest frequency when known (:func:`stepnf.verify.periodic.highest_frequency`; else computed);
     ``per_period`` the implicit integrator's steps per period (default
-    :data:`stepnf.verify.periodic.IMPLICIT_STEPS`).
+    :data:`stepnf.verify.periodic.IMPLICIT_STEPS`); ``mask`` the translation dofs W_max is measured on
+    (:func:`stepnf.plugin.dofs.translation_mask`; None: every dof).
     """
     from stepnf.verify.periodic import IMPLICIT_STEPS, Shooting
 
@@ -156,17 +161,18 @@ def by_shooting(res: Any, K, M, f1: Callable[[np.ndarray], np.ndarray], A: float
     dist = max(chart.distance(y[:n], y[n:], rho) for y in states)
     return Check(A, float(bb.omega_at(orb.amplitude)[0]), orb.omega, orb.amplitude, dist, "shooting",
                  None, time.perf_counter() - t0, {"newton_iterations": orb.newton_iterations, **sh.work},
-                 float(np.abs(orb.x0).max()))
+                 peak(orb.x0, mask))
 
 
 def by_integration(res: Any, K, M, forces: Callable[[np.ndarray], np.ndarray], A: float, *,
                    periods: float = 3.0, rtol: float = 1e-7, tangent: Callable | None = None,
                    integrator: Any = None, samples_per_period: int = 16, what: str = "",
-                   jacobian: str = "auto", per_period: int | None = None) -> Check:
+                   jacobian: str = "auto", per_period: int | None = None, mask: np.ndarray | None = None) -> Check:
     """Integrate from ``(x, v)(0, rho(A))`` over ``periods`` periods (:func:`stepnf.verify.integrate.measure`).
 
     ``jacobian``: the implicit steps' Newton (:data:`stepnf.verify.integrate.JACOBIANS`, ``--tangent``);
-    ``per_period``: steps per period of the coarse level (``--steps-per-period``; default from ``rtol``).
+    ``per_period``: steps per period of the coarse level (``--steps-per-period``; default from ``rtol``);
+    ``mask``: the translation dofs W_max is measured on (None: every dof).
     """
     from stepnf.verify.integrate import EnergyConserving, measure
 
@@ -188,7 +194,7 @@ def by_integration(res: Any, K, M, forces: Callable[[np.ndarray], np.ndarray], A
                                           "secant_steps", "krylov_steps", "jacobian_products", "halved_steps")}
                        for d in m.levels]}
     return Check(A, float(bb.omega_at(m.amplitude)[0]), m.omega, m.amplitude, dist, "integration",
-                 m.omega_error, time.perf_counter() - t0, work, float(np.abs(x0).max()))
+                 m.omega_error, time.perf_counter() - t0, work, peak(x0, mask))
 
 
 def newton_hint(jacobian: str, per_period: int | None, rtol: float) -> str:
@@ -261,7 +267,8 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
     ``"explicit"``, chosen for the master whatever its orbits do, and ``stiffness_ratio``, ``w_max / w``).
     Without ``amplitudes``, each mode is
     checked at the scene's amplitudes within its validity limit (:func:`scene_amplitudes`), else at
-    ``fractions`` of that limit (:func:`default_amplitudes`); ``rtol`` the
+    ``fractions`` of that limit (:func:`default_amplitudes`; the top capped at W_max/h = 2 with the scene's
+    thickness, :func:`stepnf.verify.deflection.cap_amplitudes`); ``rtol`` the
     integration's frequency accuracy (:func:`stepnf.verify.integrate.measure`). A scene without
     ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit is listed
     under ``failed`` (:func:`failed_orbits`) and the other checks still run. ``integrator``: the
@@ -313,6 +320,7 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                              "backbones is missing): nothing to verify")
         K, M = model.K, model.M
         n = K.shape[0]
+        mask = translation_mask(getattr(model, "dirs", None))  # W_max on translations (a shell's rotations: radians)
         jacobian = tangent  # the integration's Newton; the shooting takes the model's tangent when there is one
         tangent = adapter.tangent_stiffness if adapter.provides_tangent_stiffness else None
         shooting = n <= (SHOOTING_LIMIT if tangent is not None else 40)
@@ -333,6 +341,7 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
             amps, src = (list(amplitudes), "--amplitudes") if amplitudes else scene_amplitudes(spec, limit)
             if not amps:  # none listed, or every one beyond the limit (then said)
                 amps, dsrc = default_amplitudes(bb, (limit, why), fractions, tol)
+                amps, dsrc = cap_amplitudes(bb, amps, dsrc, getattr(scene, "thickness", None), mask=mask)
                 src = dsrc + (f"; {src}" if src else "")
             if amplitudes:
                 if limit is not None and limit <= 0:
@@ -356,10 +365,10 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                     if shooting:
                         chk = by_shooting(res, K, M, adapter.internal_force, A, forces=adapter.internal_forces,
                                           tangent=(lambda u: tangent(u).toarray()) if tangent else None,
-                                          integrator=integrator, w_max=w_max, per_period=per_period)
+                                          integrator=integrator, w_max=w_max, per_period=per_period, mask=mask)
                     else:
                         chk = by_integration(res, K, M, adapter.internal_forces, A, periods=periods, rtol=rtol,
-                                             tangent=tangent, jacobian=jacobian, per_period=per_period)
+                                             tangent=tangent, jacobian=jacobian, per_period=per_period, mask=mask)
                 # reported with the checks that worked (exit 3: stepnf.cli.main); an AdapterError: the solver's
                 # forces not finite at a state of this orbit (too large an amplitude), the others still run
                 except (NumericalError, AdapterError) as exc:
@@ -389,7 +398,8 @@ def _label(label: Any) -> Any:
 
 def check_dict(c: Check, omega: float) -> dict:
     """The JSON form of one check (frequencies as ratios to the linear ``omega`` and in rad/s;
-    ``max_displacement`` the largest displacement of the orbit's state at rest, W_max, length units)."""
+    ``max_displacement`` the largest displacement of the orbit's state at rest, W_max, length units, over the
+    translation dofs)."""
     return {"amplitude": c.amplitude, "orbit_amplitude": c.orbit_amplitude,
             "omega_dpim": c.omega_dpim, "omega_check": c.omega_check,
             "omega_dpim_over_omega": c.omega_dpim / omega, "omega_check_over_omega": c.omega_check / omega,

@@ -77,9 +77,11 @@ def test_setup_installs_ccx_on_fresh_debian12_and_no_calculix_test_skips(tmp_pat
     work = tmp_path / "opt"
     rootfs.copy_checkout(work / "stepnf")
 
+    trust = rootfs.host_pip_trust(tree)  # setup.sh pip-installs Kratos from PyPI over the host's network
+
     def run(argv: list[str], timeout: float = 1800.0) -> subprocess.CompletedProcess:
         return rootfs.run_in_root(tree, argv, binds={str(work): "/opt"}, cwd="/opt/stepnf", timeout=timeout,
-                                  env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
+                                  env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", **trust})
 
     start = time.monotonic()
     setup = run(["bash", "scripts/setup.sh", "tests"])

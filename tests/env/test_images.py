@@ -32,7 +32,7 @@ from pathlib import Path
 
 import pytest
 
-from helpers.rootfs import COMPLETE, ROOT, minbase_rootfs, require, run_in_root
+from helpers.rootfs import COMPLETE, ROOT, TRUST_INSIDE, host_pip_cert, minbase_rootfs, require, run_in_root
 
 pytestmark = pytest.mark.slow
 
@@ -85,6 +85,19 @@ def podman(*args: str, timeout: float = 600.0, check: bool = True, **kw) -> subp
         log = (r.stdout + r.stderr).splitlines()
         pytest.fail(f"podman {' '.join(args[:2])} failed (exit {r.returncode}):\n" + "\n".join(log[-40:]))
     return r
+
+
+def pip_trust_volume() -> list[str]:
+    """``podman build`` options that let pip in the build's RUN steps trust what the host's pip trusts
+    (:func:`helpers.rootfs.host_pip_cert`): a pip.conf naming the host's bundle, both mounted read-only for
+    the build only (a volume is not part of the image); none when the host's pip needs no bundle."""
+    cert = host_pip_cert()
+    if cert is None:
+        return []
+    conf = ROOT / ".cache" / "pip-trust.conf"
+    conf.parent.mkdir(parents=True, exist_ok=True)
+    conf.write_text(f"[global]\ncert = {TRUST_INSIDE}\n")
+    return ["--volume", f"{cert}:{TRUST_INSIDE}:ro", "--volume", f"{conf}:/etc/pip.conf:ro"]
 
 
 def image_id(ref: str) -> str | None:
@@ -153,7 +166,7 @@ def built(request) -> Iterator[Built]:
     dockerfile = ROOT / image.dockerfile
     podman("build", "--isolation=chroot", "--network=host", "--pull=never",  # the base is the local import
            "--build-arg", f"BASE={image.base}", "--ignorefile", f"{dockerfile}.dockerignore",
-           "-f", str(dockerfile), "-t", image.tag, ".", cwd=ROOT, timeout=3600)
+           *pip_trust_volume(), "-f", str(dockerfile), "-t", image.tag, ".", cwd=ROOT, timeout=3600)
     times["build"] = f"{time.monotonic() - t2:.1f} s"
     if old and old != image_id(image.tag):
         podman("rmi", old, check=False)  # the previous build's image (its Debian-package layer stays in use)

@@ -47,6 +47,36 @@ def require(*tools: str) -> None:
         required.need(*missing)
 
 
+def host_pip_cert() -> Path | None:
+    """The certificate bundle the host's pip trusts when it is not pip's own (``PIP_CERT``, else ``cert`` in
+    ``/etc/pip.conf``), None when pip uses its own. A machine whose network reaches PyPI through a proxy
+    that re-signs TLS (this project's machines) has one; a fresh tree or a container build on it shares the
+    host's network, so it needs that bundle too, as it needs the host's resolver: without it, pip's
+    downloads there fail with CERTIFICATE_VERIFY_FAILED (scripts/setup.sh installs Kratos's wheels
+    from PyPI)."""
+    cert = os.environ.get("PIP_CERT")
+    if not cert and Path("/etc/pip.conf").is_file():
+        for line in Path("/etc/pip.conf").read_text().splitlines():
+            key, _, value = line.partition("=")
+            if key.strip() == "cert" and value.strip():
+                cert = value.strip()
+    return Path(cert) if cert and Path(cert).is_file() else None
+
+
+#: where :func:`host_pip_trust` puts the host's bundle inside a tree or build (not a path Debian manages)
+TRUST_INSIDE = "/etc/stepnf-host-ca.crt"
+
+
+def host_pip_trust(tree: Path) -> dict[str, str]:
+    """Copy the host's pip certificate bundle (:func:`host_pip_cert`) into ``tree`` at :data:`TRUST_INSIDE`
+    and return the environment that has pip inside use it (``{}`` when the host's pip needs none)."""
+    cert = host_pip_cert()
+    if cert is None:
+        return {}
+    shutil.copy(cert, tree / TRUST_INSIDE.lstrip("/"))
+    return {"PIP_CERT": TRUST_INSIDE}
+
+
 def minbase_rootfs(suite: str, *, timeout: float = 1200.0) -> Path:
     """A ``debootstrap --variant=minbase SUITE`` tree, built once and cached under ``.cache/rootfs/``."""
     CACHE.mkdir(parents=True, exist_ok=True)

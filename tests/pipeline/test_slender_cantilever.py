@@ -42,10 +42,11 @@ def gamma_error(method, r: int, slenderness: int) -> float:
 @pytest.mark.parametrize("slenderness", [100, 300, 1000])
 def test_both_bending_modes_within_3_percent(tmp_path, slenderness):
     """Measured (Gamma against the theory with the axial-stiffness correction), modes 0 and 2: L/h = 100:
-    +1.15% and -0.06%; L/h = 300: +0.95% and -0.08%; L/h = 1000: +2.4% and -0.4%, each with an error
-    estimate below 1e-7: the rest is the model (the first mode's T is a 15-fold cancellation of curvature
-    stiffening against axial inertia, so shear, rotary inertia and the mesh show there ~10 times larger
-    than in each term). 3% is the issue's target. Before issue 31: a wrong sign at L/h = 300 and 1000."""
+    +1.15% and -0.06%; L/h = 300: +0.95% and -0.08%; L/h = 1000: +2.4% and -0.4%, each with a forces' and
+    solves' error estimate below 1e-7 (the eigenvalue's part: below): the rest is the model (the first mode's T
+    is a 15-fold cancellation of curvature stiffening against axial inertia, so shear, rotary inertia and the
+    mesh show there ~10 times larger than in each term). 3% is the issue's target. Before issue 31: a wrong
+    sign at L/h = 300 and 1000."""
     res = run_scene(load_scene(fenicsx_scene(tmp_path, slenderness)), write=False)
     for m, r in zip(res.modes, (1, 2)):
         dnf = m.methods["dnf"]
@@ -53,7 +54,11 @@ def test_both_bending_modes_within_3_percent(tmp_path, slenderness):
         assert abs(gamma_error(dnf, r, slenderness)) < 0.03, (m.index, dnf.gamma, dnf.T_error)
     # the first mode's digits came from STEP along the quadratic manifold (module stepnf/step/manifold_probe)
     assert "manifold_probe" in {f["kind"] for f in res.modes[0].methods["dnf"].flags}
-    assert res.modes[0].methods["dnf"].T_error < 1e-4
+    # T_error also holds the master's own eigenvalue error through T's slope in lambda (issue 31 item 2,
+    # nf/roundoff.eigenvalue_part: measured 7.5e-4 at L/h = 300, 9.1e-2 at 1000, against an actual error of
+    # +0.95% and +2.4% model included); the forces' and solves' part stays below 1e-4
+    first = res.modes[0].methods["dnf"]
+    assert first.T_error - first.extra["roundoff_dT_lambda"] / abs(first.T) < 1e-4
 
 
 @pytest.mark.fenicsx

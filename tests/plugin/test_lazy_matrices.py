@@ -50,6 +50,33 @@ def test_mass_shares_the_stiffness_index_arrays():
     np.testing.assert_array_equal((Mc @ np.arange(50.0)), M_ref @ np.arange(50.0))
 
 
+def test_unsorted_patterns_are_not_shared():
+    """Matrices whose column indices are not sorted (a solver's own dof order, e.g. the kratos adapter's
+    equation numbering) keep their own index arrays: scipy sorts them in place when an operation needs it
+    (``M.max()``), which through shared arrays scrambled K's entries (the harness then found K asymmetric)."""
+    K_ref, M_ref = chain(30)
+
+    def unsorted(A):  # the same matrix with each row's entries stored in reverse column order
+        order = np.concatenate([np.arange(a, b)[::-1] for a, b in zip(A.indptr[:-1], A.indptr[1:])])
+        return sp.csr_matrix((A.data[order], A.indices[order], A.indptr.copy()), shape=A.shape)
+
+    K_un, M_un = unsorted(K_ref), unsorted(M_ref)
+    assert not K_un.has_sorted_indices and (K_un != K_ref).nnz == 0
+
+    class Unsorted(Chain):
+        def _build_stiffness(self):
+            return K_un.copy()
+
+        def _build_mass(self):
+            return M_un.copy()
+
+    ad = Unsorted(30)
+    M = ad.mass_matrix()
+    K = ad.stiffness_matrix()
+    assert M.max() == M_ref.max()  # scipy's max() first sorts M's indices in place (sum_duplicates)
+    assert (K != K_ref).nnz == 0 and (ad.mass_matrix() != M_ref).nnz == 0
+
+
 def test_different_patterns_are_left_alone():
     ad = Chain(20, lumped=True)
     K, M = ad.stiffness_matrix(), ad.mass_matrix()

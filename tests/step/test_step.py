@@ -77,7 +77,8 @@ def test_targeted_step_recovers_G_and_h(rigid):
 
 
 def test_targeted_step_flags_non_cubic_force():
-    """A quintic term makes STEP amplitude-dependent: the check must flag it (the estimate can fail)."""
+    """A quintic term makes STEP amplitude-dependent: the check sees it, a third amplitude measures its rate
+    (2) and the extrapolation removes it (issue 32; before, the raw h was kept and flagged step_accuracy)."""
     adapter, basis = _setup()
 
     def forces_quintic(U):
@@ -88,9 +89,13 @@ def test_targeted_step_flags_non_cubic_force():
     policy = StepPolicy()
     res = targeted_step(ForceEvaluator(forces_quintic, adapter.n_dofs, Counters()), K, phi,
                         step_amplitude(phi, policy, None), policy, p=0)
-    # the u^5 term contributes q^2 phi^5 ~ O(1e-1) relative to h at q phi <= 0.5: far above 1e-4
-    assert res.error_h > policy.tolerance
-    assert [f["kind"] for f in res.flags] == ["step_accuracy"]
+    # the u^5 term contributes q^2 phi^5 ~ O(1e-1) relative to h at q phi <= 0.5: far above 1e-4; it is an
+    # exact a^2 term of Hv(a), which one Richardson step removes to rounding (measured 6e-15)
+    assert abs(res.rate_h - 2.0) < 1e-6
+    _, h_exact = _exact_tensors(adapter, phi[:, None])
+    assert abs(res.h - h_exact[0, 0, 0, 0]) < RTOL_STEP * abs(h_exact[0, 0, 0, 0])
+    assert res.error_h < policy.tolerance
+    assert [f["kind"] for f in res.flags] == ["step_extrapolated"]
     assert res.flags[0]["mode"] == 0
 
 

@@ -39,7 +39,8 @@ Refused, each a :class:`~stepnf.errors.SceneError` naming the deck, the
 keyword and its line (exit code 2): every keyword of :data:`REFUSED` (constraints
 such as ``*EQUATION``, ``*MPC``, ``*RIGID BODY``, ``*COUPLING``; contact; any
 material option but ``*ELASTIC`` and ``*DENSITY``; shell, beam, membrane
-sections and discrete elements; initial conditions; ``*TRANSFORM``), shell,
+sections and discrete elements; shell elements (:data:`SHELL_TYPES`, for the
+measured :data:`SHELL_REASON`); initial conditions; ``*TRANSFORM``), shell,
 beam and other non-solid element types, unknown keyword options, ``*ELASTIC``
 types other than the four, a used material without ``*DENSITY``, non-zero or
 non-translational ``*BOUNDARY`` values, and any other model-data keyword
@@ -88,6 +89,17 @@ _REFUSED_GROUPS = {
 }
 #: Keywords refused wherever they stand outside a step -> why.
 REFUSED = {kw: why for why, kws in _REFUSED_GROUPS.items() for kw in kws}
+#: CalculiX shell element types, refused in a deck for :data:`SHELL_REASON`.
+SHELL_TYPES = ("S3", "S3R", "S4", "S4R", "S6", "S8", "S8R", "STRI3", "STRI65", "S4R5", "S9R5")
+#: Why a deck's shells are refused: measured with ccx 2.20 on a flat S3/S4/S8R plate whose shell nodes had all six
+#: dofs prescribed (*BOUNDARY 1-6, *STATIC NLGEOM), the probe of tests/solvers/calculix/test_calculix_shell_deck.py
+#: (the rigid rotation: S3, S4 and S8 fail from 0.1 degree, S8R from 0.5 degree).
+SHELL_REASON = ("CalculiX expands shells into 3D solids, and measured with ccx 2.20 its shell nodes make no "
+                "black box stepnf can use: *NODE PRINT RF gives the forces but no moments at prescribed rotations "
+                "(dofs 4-6), the K and M it exports are over the expanded solid's nodes (translations only), and "
+                "a rigid rotation of 0.5 degree about an in-plane axis does not converge. Model the part with "
+                "solid elements (C3D20R), or use solver = \"kratos\" with element = \"dkt\"")
+REFUSED["SHELL SECTION"] = f"a shell section: {SHELL_REASON}"
 #: Keywords whose data lines are numbers only, with the largest number of lines they take.
 NUMERIC_DATA = {"MATERIAL": 0, "SOLID SECTION": 1, "ORIENTATION": 2}
 #: Keywords that belong to the *MATERIAL above them.
@@ -197,6 +209,9 @@ class _DeckReader:
             self.parts.append(f"** stepnf: the *BOUNDARY of {where(b.head)} is a boundary condition of stepnf's "
                               "model (its dofs removed), not written here")
             return
+        if b.name == "ELEMENT" and b.options.get("TYPE", "").upper() in SHELL_TYPES:
+            raise self.err(b.head, f"element type {b.options['TYPE'].upper()!r} is a shell, refused in a deck: "
+                                   f"{SHELL_REASON}")
         if not self.model.add(b) and b.name in self.handlers:
             getattr(self, self.handlers[b.name])(b)
         self.parts.append("\n".join(line.text for line in (b.head, *b.data)))

@@ -61,15 +61,22 @@ folders' parent (``workdir``, else the temporary folder, TMPDIR) spaces,
 quotes, backslashes and control characters: the ``.export`` file names the
 files by their paths and splits its lines at spaces.
 
+Shells (:mod:`.shell`): ``element = "dkt"`` or ``"coque_3d"`` with ``mesh = "<MED mid-surface>"`` and
+``thickness``: six dofs a node (``ux uy uz rx ry rz``), ``forces_shell.comm`` (one ``STAT_NON_LINE`` per
+field from the reference state, ``GROT_GDEP``, forces and moments) and ``matrices_shell.comm``;
+catalogue-checked, never run here (``solvers/code_aster/README.md``: what code_aster says of DKT under large
+displacements).
+
 MED helpers (:mod:`.med`): :func:`read_nodal_steps`, :func:`list_fields`,
 :func:`write_med`, :func:`add_nodal_field`.
 """
 from __future__ import annotations
 
 from .adapter import CodeAsterAdapter, shipped_template, triplets_to_matrix
+from .shell import CodeAsterShellAdapter  # registers itself as CodeAsterAdapter.shell_class
 from .med import (MedError, NodalStep, add_nodal_field, list_fields, read_mesh_nodes, read_nodal_field,
                   read_nodal_steps, read_profile, write_med)
 
-__all__ = ["CodeAsterAdapter", "shipped_template", "triplets_to_matrix", "MedError", "NodalStep",
+__all__ = ["CodeAsterAdapter", "CodeAsterShellAdapter", "shipped_template", "triplets_to_matrix", "MedError", "NodalStep",
            "add_nodal_field", "list_fields", "read_mesh_nodes", "read_nodal_field", "read_nodal_steps",
            "read_profile", "write_med"]

@@ -71,8 +71,9 @@ from .materials import has_axes, is_plain, materials_text, python_str
 from .med import (MedError, add_nodal_field, read_cell_groups, read_groups, read_mesh_nodes, read_nodal_steps,
                   write_med)
 
-ELEMENTS = ("hex20",)
-TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export", "forces_calcul.comm")
+ELEMENTS = ("hex20", "dkt", "coque_3d")  # dkt, coque_3d: shells on a user's MED mid-surface mesh (.shell)
+TEMPLATE_NAMES = ("forces.comm", "forces.export", "matrices.comm", "matrices.export", "forces_calcul.comm",
+                  "forces_shell.comm", "matrices_shell.comm")
 #: ``force_route`` -> the template of the force job (written as ``forces.comm`` in the work folder)
 FORCE_ROUTES = {"stat_non_line": "forces.comm", "calcul": "forces_calcul.comm"}
 COMPONENTS = ("DX", "DY", "DZ")
@@ -93,6 +94,8 @@ MODEL_KEYS = Schema(
         "imposed (EVOL_IMPO), or CALCUL FORC_INTE_ELEM per field (one element loop, no Newton iteration; checked "
         "against code_aster's catalogue only, never run by stepnf)", default="stat_non_line",
         choices=tuple(FORCE_ROUTES)),
+    Key("thickness", "number", "shell thickness (m; AFFE_CARA_ELEM COQUE EPAIS): element = \"dkt\" or \"coque_3d\" "
+        "with a MED mesh of the mid-surface", lo=0.0, lo_open=True),
     NCPUS, MEMORY_MB, *RUN_KEYS, BOUNDARY_KEY, MATERIALS_KEY,
 )
 FIELD_IN, FIELD_OUT = "U", "F"
@@ -139,6 +142,18 @@ def triplets_to_matrix(values, rows, cols, n: int) -> sp.csr_matrix:
 
 
 
+
+def load_matrices_npz(path: Path) -> tuple[int, np.ndarray, list[str], sp.csr_matrix, sp.csr_matrix]:
+    """The matrices file the matrices template writes: ``(n_eq, dof_nodes, dof_components, K, M)``, the
+    equations' node numbers (0-based) and component names (``DX``, ..., ``DRZ``) and K, M over the equations."""
+    with np.load(path, allow_pickle=False) as z:
+        n_eq = int(z["n"])
+        nodes = np.asarray(z["dof_nodes"], dtype=np.int64)
+        comps = [str(c).strip() for c in z["dof_components"]]
+        K = triplets_to_matrix(z["K_values"], z["K_rows"], z["K_cols"], n_eq)
+        M = triplets_to_matrix(z["M_values"], z["M_rows"], z["M_cols"], n_eq)
+    return n_eq, nodes, comps, K, M
+
 class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
     """A solid model run by code_aster as a black box (``run_aster`` or a docker image).
 
@@ -167,6 +182,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
 
     name = "code_aster"
     program = "run_aster"
+    #: :class:`.shell.CodeAsterShellAdapter` (``element = "dkt"``, ``"coque_3d"``), set when the package imports it
+    shell_class: Any = None
     model_keys = MODEL_KEYS
     program_keys = {"command": "is the command stepnf would run for every code_aster job",
                     "templates": "names command files that code_aster would run (they are Python programs)"}
@@ -269,7 +286,8 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
                         scene_file: str | Path | None = None) -> dict[str, Any]:
         """The ``[model]`` keys (:func:`stepnf.external.check_solid_config`); ``command`` and ``templates``
         only when the user allows programs (:mod:`stepnf.runtime.programs`); the command's program, when a
-        relative path, is the scene folder's (passed on as ``executable``)."""
+        relative path, is the scene folder's (passed on as ``executable``). A shell's conditions take
+        rotations (:meth:`rotational_dofs`)."""
         c = super().validate_config(config, base_dir=base_dir, scene_file=scene_file)
         if "command" in config:
             try:
@@ -279,7 +297,14 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             if not words:
                 raise SceneError(scene_file, "model.command", "an empty command; give e.g. \"run_aster ${export}\"")
             c["executable"] = resolve_program(words[0], base_dir)
+        if cls.shell_class is not None:
+            cls.shell_class.check_shell_keys(c, scene_file)  # element = "dkt" or "coque_3d": mesh and thickness
         return c
+
+    @classmethod
+    def rotational_dofs(cls, config: Mapping[str, Any]) -> bool:
+        """A shell's nodes (``element = "dkt"``, ``"coque_3d"``: :mod:`.shell`) have rotations ``rx ry rz``."""
+        return cls.shell_class is not None and cls.shell_class.takes_rotations(config)
 
     @staticmethod
     def _template(name: str, folder: str | Path | None) -> CommandTemplate:
@@ -298,11 +323,15 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         return cls(mesh.points, cells=mesh.cells, cell_type=mesh.cell_type, **kw)
 
     @classmethod
-    def from_med(cls, path: str | Path, *, mesh_name: str | None = None, **kw: Any) -> "CodeAsterAdapter":
-        """A user's MED volume mesh."""
+    def from_med(cls, path: str | Path, *, mesh_name: str | None = None, shell: str | None = None,
+                 **kw: Any) -> "CodeAsterAdapter":
+        """A user's MED volume mesh; with ``shell`` (``"dkt"``, ``"coque_3d"``) and ``thickness`` a mid-surface
+        mesh of shells (:class:`.shell.CodeAsterShellAdapter`)."""
         from .med import mesh_name as first_mesh
 
         name = mesh_name or first_mesh(path)
+        if shell is not None:  # the shell adapter (.shell) registers itself as shell_class
+            return cls.shell_class.from_shell_med(path, name, shell, **kw)
         return cls(read_mesh_nodes(path, name), mesh_file=path, mesh_name=name, node_sets=read_groups(path, name),
                    cell_groups=read_cell_groups(path, name), **kw)
 
@@ -408,12 +437,7 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
             self._K, self._M = self.free_part(K), self.free_part(M)
 
     def _read_matrices(self, path: Path, workdir: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-        with np.load(path, allow_pickle=False) as z:
-            n_eq = int(z["n"])
-            nodes = np.asarray(z["dof_nodes"], dtype=np.int64)
-            comps = [str(c).strip() for c in z["dof_components"]]
-            K = triplets_to_matrix(z["K_values"], z["K_rows"], z["K_cols"], n_eq)
-            M = triplets_to_matrix(z["M_values"], z["M_rows"], z["M_cols"], n_eq)
+        n_eq, nodes, comps, K, M = load_matrices_npz(path)
         code = {c: i for i, c in enumerate(COMPONENTS)}
         index = np.array([3 * nd + code.get(c, -10 ** 9) for nd, c in zip(nodes, comps)], dtype=np.int64)
         n = 3 * len(self.points)  # the solver assembles every nodal dof; fixed ones are removed after

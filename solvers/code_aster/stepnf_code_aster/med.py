@@ -31,7 +31,10 @@ from stepnf.errors import SolverRunError
 
 NO_PROFILE = "MED_NO_PROFILE_INTERNAL"
 #: MED geometry codes and names of the cells written here.
-MED_CELLS = {"hexahedron20": ("H20", 320), "hexahedron": ("HE8", 308), "hexahedron27": ("H27", 327)}
+MED_CELLS = {"hexahedron20": ("H20", 320), "hexahedron": ("HE8", 308), "hexahedron27": ("H27", 327),
+             # shells' mid-surfaces (code_aster DKT, COQUE_3D): same node order as VTK's (quad9, triangle7:
+             # corners, mid-sides, centre)
+             "triangle": ("TR3", 203), "quad": ("QU4", 204), "triangle7": ("TR7", 207), "quad9": ("QU9", 209)}
 #: Column k of a MED H20 connectivity is column MED_FROM_VTK[k] of a VTK hexahedron20 one.
 MED_FROM_VTK = {
     "hexahedron": np.array([4, 5, 6, 7, 0, 1, 2, 3]),

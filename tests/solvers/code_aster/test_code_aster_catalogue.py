@@ -4,10 +4,11 @@
 (``code_aster/Cata/Commands/*.py`` of the ehmoussi/code_aster mirror; each fact names its file)
 says about the commands and keywords stepnf's templates use: which keywords exist (and in which
 BLOC), which are mandatory and when, the rules (UN_PARMI, ...) and the allowed values of the
-keywords given fixed strings. The table was extracted, and every call checked with the
-catalogue's ``SyntaxChecker.checkCommandSyntax``, outside the project; here every ``.comm``
+keywords given fixed strings. The table is built, and every call checked with the
+catalogue's ``SyntaxChecker.checkCommandSyntax``, by ``scripts/code_aster_catalogue.py`` from a
+checkout of code_aster's sources (not in CI: the sources are not here); here every ``.comm``
 variant the adapter renders (both force routes, isotropic, orthotropic with and without axes,
-per-group materials, a clamped edge, the matrices job) is parsed with :mod:`ast` and held to
+per-group materials, a clamped edge, the matrices job, the DKT and COQUE_3D shells) is parsed with :mod:`ast` and held to
 the table, so CI guards the keywords without code_aster or its sources.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ import pytest
 
 ca = pytest.importorskip("stepnf_code_aster")
 pytest.importorskip("h5py")
-from helpers.code_aster import AXES, ISO, ORTHO, cap, from_mesh, grouped_med  # noqa: E402
+from helpers.code_aster import ISO, cap, catalogue_adapters, from_mesh, rendered, shell_plate_med  # noqa: E402
 from helpers.paths import DATA  # noqa: E402
 
 FACTS = json.loads((DATA / "code_aster_catalogue.json").read_text())
@@ -30,7 +31,6 @@ COMMANDS = FACTS["commands"]
 COMMAND_NAME = re.compile(r"^[A-Z][A-Z0-9_]*$")  # code_aster commands; CO names a result to create
 NOT_COMMANDS = {"CO"}
 ROUTES = ("stat_non_line", "calcul")
-SKIN = {"E": 7.1e10, "nu": 0.33, "rho": 2700.0}
 
 
 # --------------------------------------------------------------- the checker
@@ -143,29 +143,9 @@ def catalogue_errors(comm: str) -> tuple[list[str], set[str]]:
 
 # --------------------------------------------------------------- the variants
 def adapters(tmp_path: Path, route: str) -> dict[str, Any]:
-    """One adapter per kind of rendered command file (materials, groups, axes, boundary conditions)."""
-    n = len(cap(tmp_path).cells)
-    groups = grouped_med(tmp_path, {"CORE": slice(0, n // 2), "SKIN": slice(n // 2, n - 1)}, "groups.med")
-    plain = grouped_med(tmp_path, {}, "plain.med")
-    r = {"force_route": route}
-    return {
-        "isotropic cap": cap(tmp_path, **r),
-        "isotropic cap, clamped edge": cap(tmp_path, boundary=[{"set": "edge"}], **r),
-        "orthotropic with axes": from_mesh(tmp_path, plain, material={**ORTHO, "axes": AXES}, **r),
-        "orthotropic without axes": from_mesh(tmp_path, plain, material=ORTHO, **r),
-        "groups, isotropic default": from_mesh(tmp_path, groups, material=ISO, **r,
-                                               materials={"CORE": {**ORTHO, "axes": AXES}, "SKIN": SKIN}),
-        "groups, default with axes": from_mesh(tmp_path, groups, material={**ORTHO, "axes": AXES}, **r,
-                                               materials={"CORE": ISO, "SKIN": {**ORTHO, "axes": [[0, 1, 0],
-                                                                                                   [0, 0, 1]]}}),
-    }
-
-
-def rendered(ad, tmp_path: Path, job: str, label: str) -> str:
-    wd = tmp_path / re.sub(r"\W+", "_", f"{label}_{job}")
-    wd.mkdir()
-    ad.render_job(wd, job, n_fields=3)
-    return (wd / f"{job}.comm").read_text()
+    """One adapter per kind of rendered command file (:func:`helpers.code_aster.catalogue_adapters`: materials,
+    groups, axes, boundary conditions, and on the STAT_NON_LINE route the DKT and COQUE_3D shells)."""
+    return catalogue_adapters(tmp_path, route)
 
 
 @pytest.mark.parametrize("route", ROUTES)
@@ -246,4 +226,55 @@ def test_a_matrices_template_with_a_mistake_fails(tmp_path, old, new, message):
     (tmp_path / "tpl").mkdir()
     (tmp_path / "tpl" / "matrices.comm").write_text(text.replace(old, new, 1))
     errors, _ = catalogue_errors(rendered(cap(tmp_path, templates="tpl"), tmp_path, "matrices", "mistake"))
+    assert any(message in e for e in errors), errors
+
+
+# ------------------------------------------------------------------ shells
+def _shell(tmp_path: Path, element: str, **kw):
+    kind = "quad9" if element == "coque_3d" else "quad"
+    return from_mesh(tmp_path, shell_plate_med(tmp_path, kind), material=ISO, element=element, thickness=0.003, **kw)
+
+
+@pytest.mark.parametrize("element, modelisation", [("dkt", "DKT"), ("coque_3d", "COQUE_3D")])
+def test_shell_command_files_agree_with_the_catalogue(tmp_path, element, modelisation):
+    """DKT and COQUE_3D: the modelisation, AFFE_CARA_ELEM COQUE EPAIS, the six imposed dofs, GROT_GDEP, one
+    STAT_NON_LINE per field from the reference state, and the rotational dofs' matrices, all in the catalogue."""
+    ad = _shell(tmp_path, element)
+    forces, matrices = (rendered(ad, tmp_path, job, element) for job in ("forces", "matrices"))
+    for text in (forces, matrices):
+        errors, used = catalogue_errors(text)
+        assert errors == [] and "AFFE_CARA_ELEM" in used, errors
+        assert f'MODELISATION="{modelisation}"' in text and "COQUE=_F(GROUP_MA=\"STEPNF_SHELL\", EPAIS=0.003" in text
+        assert "CARA_ELEM=cara," in text
+    assert 'NOM_CMP=("DX", "DY", "DZ", "DRX", "DRY", "DRZ")' in forces and 'DEFORMATION="GROT_GDEP"' in forces
+    assert "INST_INIT=float(i - 1), INST_FIN=float(i)" in forces and "ETAT_INIT=" not in forces
+
+
+def test_every_modelisation_run_with_grot_gdep_has_a_runtime_fact(tmp_path):
+    """The command catalogue does not say which modelisation takes DEFORMATION="GROT_GDEP": the facts name the
+    element routine that does, for every modelisation a rendered force job runs with it."""
+    used = set()
+    for label, ad in adapters(tmp_path, "stat_non_line").items():
+        text = rendered(ad, tmp_path, "forces", label)
+        if 'DEFORMATION="GROT_GDEP"' in text:
+            used |= set(re.findall(r'MODELISATION="([A-Z_0-9]+)"', text))
+    facts = FACTS["runtime"]["GROT_GDEP"]["modelisations"]
+    assert used == {"3D", "DKT", "COQUE_3D"} and used <= set(facts)
+    assert "dktnli.F90" in facts["DKT"] and "te0414.F90" in facts["COQUE_3D"]
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("EPAIS=${thickness}", "EPAISSEUR=${thickness}", "keyword EPAISSEUR is not one"),
+    ("COQUE=_F(GROUP_MA=${shell_group_py}, ", "COQUE=_F(TOUT=\"OUI\", ", "keyword TOUT is not one"),
+    ('MODELISATION=${modelisation_py}', 'MODELISATION="DKTT"', "'DKTT' is not an allowed value"),
+    ("INST_INIT=float(i - 1)", "INST_INITIAL=float(i - 1)", "keyword INST_INITIAL is not one"),
+    ('"DRX", "DRY", "DRZ"))', '"DRX", "DRY", "DRZ"), TOUT="OUI")', "keyword TOUT is not one"),
+])
+def test_a_shell_template_with_a_mistake_fails(tmp_path, old, new, message):
+    text = ca.shipped_template("forces_shell.comm").text
+    assert old in text
+    (tmp_path / "tpl").mkdir()
+    (tmp_path / "tpl" / "forces_shell.comm").write_text(text.replace(old, new, 1))
+    ad = _shell(tmp_path, "dkt", templates="tpl")
+    errors, _ = catalogue_errors(rendered(ad, tmp_path, "forces", "mistake"))
     assert any(message in e for e in errors), errors
