@@ -69,6 +69,10 @@ class KratosAdapter(LazyMatrices, SolverAdapter):
         fixed = fixed_dofs(boundary, self.points, mesh.node_sets, scene_file, mesh.info.get("file"),
                            dofs_per_node=DOFS_PER_NODE)
         self.free_dofs = FreeDofs(n_full, fixed)
+        if self.free_dofs.n_free == 0:
+            raise SceneError(scene_file, "model.boundary", f"the conditions fix all {n_full} dofs of the mesh's "
+                             f"{len(self.points)} nodes: nothing is left to vibrate; hold part of the mesh (a node "
+                             "set or a box), or fewer dofs")
         self.applied_conditions = [bc.where for bc in boundary]
         self.threads, self.timeout = threads, timeout
         self._worker = None

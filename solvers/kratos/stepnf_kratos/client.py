@@ -50,7 +50,9 @@ class KratosWorker:
                                          start_new_session=True)
             self._stack.enter_context(track(self.proc))
         self._lock = threading.Lock()
-        self._finalizer = weakref.finalize(self, _shutdown, self.proc, self._stack, self.folder)
+        self._timed_out = False  # set by the time-out's kill (not by a kill from elsewhere)
+        self._keep = {"folder": False}  # a failure keeps the folder its message names (the log)
+        self._finalizer = weakref.finalize(self, _shutdown, self.proc, self._stack, self.folder, self._keep)
 
     def call(self, command: str, payload: Any = None) -> Any:
         """The worker's result for ``command``; a :class:`SolverRunError` if it failed, died or timed out."""
@@ -66,29 +68,33 @@ class KratosWorker:
                 self.proc.stdin.flush()
                 status, result = pickle.load(self.proc.stdout)
             except (EOFError, BrokenPipeError, pickle.UnpicklingError, OSError):
+                self._keep["folder"] = True
                 raise self._died(command) from None
             finally:
                 if timer is not None:
                     timer.cancel()
         if status != "ok":
+            self._keep["folder"] = True
             raise SolverRunError(f"Kratos failed ({command}): {result}", workdir=self.folder,
                                  log_tail=log_tail(self.log, 8))
         return result
 
     def _kill(self) -> None:
+        self._timed_out = True
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.killpg(self.proc.pid, signal.SIGKILL)
 
     def _died(self, command: str) -> SolverRunError:
         rc = self.proc.wait()
         how = f"killed by {signal.Signals(-rc).name}" if rc < 0 and -rc in signal.valid_signals() else f"exit code {rc}"
-        if rc == -signal.SIGKILL and self.timeout is not None:
-            how += f" (time-out of {self.timeout:g} s per request?)"
+        if self._timed_out:
+            how += f" (the time-out of {self.timeout:g} s per request)"
         return SolverRunError(f"the Kratos worker process died during '{command}' ({how})", workdir=self.folder,
                               log_tail=log_tail(self.log, 8))
 
     def close(self) -> None:
-        """Stop the worker and remove its folder. Idempotent (also run when the object is collected, or at exit)."""
+        """Stop the worker and remove its folder (kept after a failure: the message names it). Idempotent (also
+        run when the object is collected, or at exit)."""
         self._finalizer()
 
     def __enter__(self) -> "KratosWorker":
@@ -98,8 +104,9 @@ class KratosWorker:
         self.close()
 
 
-def _shutdown(proc: subprocess.Popen, stack: contextlib.ExitStack, folder: Path) -> None:
-    """Ask the worker to quit (killed after 10 s), close its pipes, unregister it, remove its folder."""
+def _shutdown(proc: subprocess.Popen, stack: contextlib.ExitStack, folder: Path, keep: dict) -> None:
+    """Ask the worker to quit (killed after 10 s), close its pipes, unregister it, remove its folder unless
+    ``keep["folder"]`` (a failed request: its message names the folder and its log)."""
     if proc.poll() is None:
         with contextlib.suppress(OSError, ValueError):
             pickle.dump(("quit", None), proc.stdin)
@@ -114,4 +121,5 @@ def _shutdown(proc: subprocess.Popen, stack: contextlib.ExitStack, folder: Path)
         with contextlib.suppress(OSError, ValueError):
             stream.close()
     stack.close()
-    shutil.rmtree(folder, ignore_errors=True)
+    if not keep["folder"]:
+        shutil.rmtree(folder, ignore_errors=True)

@@ -4,7 +4,8 @@
 (``triangle`` for ``dkt``, ``quad`` for ``dkq``), with the file's named node sets
 (:func:`stepnf.geometry.mesh_sets.read_node_sets`: boundary conditions) and cell sets
 (:func:`~stepnf.geometry.mesh_sets.read_cell_sets`: materials). A mesh of solids, or one without cells
-of that type, is a :class:`~stepnf.errors.SceneError` naming the file and the key ``model.mesh``.
+of that type, or with degenerate cells (:func:`degenerate_cells`), is a :class:`~stepnf.errors.SceneError`
+naming the file and the key ``model.mesh``.
 
 :func:`cap_surface` is the mid-surface of the generated free-edge caps of the solid adapters
 (:func:`stepnf.geometry.cap.spherical_cap`, same ``a``, ``R``, ``n_core``, ``n_ring``, ``core``,
@@ -85,12 +86,40 @@ def read_shell_mesh(path: str | Path, element: str, scene_file: str | Path | Non
         pts = np.column_stack([pts, np.zeros(len(pts))])
     if not np.all(np.isfinite(pts)):
         raise SceneError(scene_file, "model.mesh", f"{path}: node coordinates are not all finite")
+    if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
+        raise SceneError(scene_file, "model.mesh", f"{path}: {kind} cells reference nodes outside 0..{len(pts) - 1} "
+                         f"(the mesh has {len(pts)} nodes)")
+    bad = degenerate_cells(pts, cells)
+    if bad.any():
+        e = int(np.flatnonzero(bad)[0])
+        raise SceneError(scene_file, "model.mesh", f"{path}: {kind} cell {e} (0-based, nodes {cells[e].tolist()}) is "
+                         f"degenerate (a node used twice, an edge or the area of zero length); {int(bad.sum())} "
+                         "cell(s) are; Kratos's shells give NaN stiffness for them")
     used = np.unique(cells)
     renum = np.full(len(pts), -1)
     renum[used] = np.arange(len(used))
     cells = renum[cells]
     info = {"file": str(path)}
     return ShellMesh(pts[used], cells, kind, read_node_sets(m, renum), read_cell_sets(m, kind), info)
+
+
+def degenerate_cells(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Bool (E,): the cells (triangles or quadrilaterals, 0-based) that use a node twice, or whose shortest edge
+    or vector area (a triangle's ``(b - a) x (c - a) / 2``, a quadrilateral's ``(c - a) x (d - b) / 2``) is at
+    most :data:`stepnf.geometry.checks.DEGENERATE_RTOL` times the cell's bounding-box diagonal (squared for
+    the area): the solid meshes' threshold, far above round-off (~1e-16) and below any usable aspect ratio."""
+    from stepnf.geometry.checks import DEGENERATE_RTOL
+
+    X = points[cells]  # (E, k, 3)
+    srt = np.sort(cells, axis=1)
+    twice = (srt[:, 1:] == srt[:, :-1]).any(axis=1)
+    L = np.linalg.norm(X.max(axis=1) - X.min(axis=1), axis=1)
+    edge = np.linalg.norm(np.roll(X, -1, axis=1) - X, axis=2).min(axis=1)
+    if cells.shape[1] == 3:
+        area = 0.5 * np.linalg.norm(np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), axis=1)
+    else:
+        area = 0.5 * np.linalg.norm(np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 1]), axis=1)
+    return twice | (edge <= DEGENERATE_RTOL * L) | (area <= DEGENERATE_RTOL * L ** 2)
 
 
 def cap_surface(a: float, R: float, element: str, *, n_core: int, n_ring: int, core: float,

@@ -9,7 +9,9 @@ history tests assert equality, not closeness.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -149,16 +151,46 @@ def test_a_crash_of_kratos_is_a_message():
     ad = curved_patch("dkt")
     with ad:
         ad.stiffness_matrix()
-        os.kill(ad._worker.proc.pid, signal.SIGSEGV)
-        with pytest.raises(SolverRunError, match="Kratos worker process died during 'forces' .*SIGSEGV"):
+        os.kill(ad._worker.proc.pid, signal.SIGKILL)  # as by the OOM killer or a user: not stepnf's time-out
+        with pytest.raises(SolverRunError, match="Kratos worker process died during 'forces' .*SIGKILL") as died:
             ad.internal_forces(np.zeros((2, ad.n_dofs)))
+    assert "time-out" not in str(died.value)
+    kept_folder_holds_the_log(died.value)
     from stepnf_kratos.client import KratosWorker
 
     w = KratosWorker()
     try:
-        with pytest.raises(SolverRunError, match=r"Kratos failed \(build\)"):
+        with pytest.raises(SolverRunError, match=r"Kratos failed \(build\)") as failed:
             w.call("build", {"points": np.zeros((3, 3)), "cells": np.array([[0, 1, 2]]), "element": "NoSuchElement",
                              "properties": [{"E": 1.0, "nu": 0.0, "rho": 1.0, "h": 1.0}], "cell_property": [0],
                              "folder": str(w.folder)})
     finally:
         w.close()
+    kept_folder_holds_the_log(failed.value)
+
+
+def kept_folder_holds_the_log(error: SolverRunError) -> None:
+    """The work folder a failure's message names still exists after close, with the worker's log; removed here."""
+    folder = Path(error.workdir)
+    try:
+        assert (folder / "kratos.log").is_file(), error
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def test_the_time_out_is_named_only_when_it_fired():
+    """A request longer than ``timeout`` (here: importing Kratos, seconds, against 1 ms) kills the worker and the
+    message names the time-out; a healthy worker closed after use leaves no folder behind."""
+    from stepnf_kratos.client import KratosWorker
+
+    w = KratosWorker(timeout=1e-3)
+    try:
+        with pytest.raises(SolverRunError, match=r"died during 'timings' \(killed by SIGKILL \(the time-out of "
+                           r"0.001 s per request\)\)") as late:
+            w.call("timings")
+    finally:
+        w.close()
+    kept_folder_holds_the_log(late.value)
+    with KratosWorker() as ok:
+        assert isinstance(ok.call("timings"), dict)
+    assert not ok.folder.exists() and ok.proc.poll() is not None

@@ -25,7 +25,7 @@ from helpers.required import requires
 from stepnf.pipeline.run import run_scene
 from stepnf.scene.parse import parse_scene
 
-pytestmark = requires("KratosMultiphysics", "stepnf_kratos")
+pytestmark = [requires("KratosMultiphysics", "stepnf_kratos"), pytest.mark.slow]  # ~22 s: three cap runs
 
 SCENE = EXAMPLES / "shell_kappa25_dkt.toml"
 #: h (m): R (m) giving kappa = a^4 / (R h)^2 = 25 with a = 0.15 m, and the 3D solid's Gamma (see above)

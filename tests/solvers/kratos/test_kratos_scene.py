@@ -101,3 +101,40 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, model, key, says):
     assert len(err.splitlines()) == 1 and str(path) in err and f"[{key}]" in err and says in err, err
     with pytest.raises(SceneError):
         build(tmp_path, model)
+
+
+@pytest.mark.parametrize("kind, broken", [
+    ("triangle", lambda P, c: c.__setitem__((0, 1), c[0, 0])),  # a node used twice
+    ("triangle", lambda P, c: P.__setitem__(c[0, 2], (P[c[0, 0]] + P[c[0, 1]]) / 2)),  # three nodes on a line
+    ("quad", lambda P, c: P.__setitem__(c[0, 3], P[c[0, 2]])),  # two corners at one point
+])
+def test_degenerate_cell_is_one_line_exit_2(tmp_path, capsys, kind, broken):
+    """A collapsed cell of a user's mesh is a one-line message naming the file, the key and the cell (exit 2),
+    not Kratos's NaN stiffness reported as a solver failure (exit 3, as before)."""
+    plate_file(tmp_path / "plate.inp", kind)
+    m = meshio.read(tmp_path / "plate.inp")
+    P, cells = np.array(m.points), np.array(m.cells[0].data)
+    broken(P, cells)
+    meshio.write(tmp_path / "plate.inp", meshio.Mesh(P, [(kind, cells)]))
+    element = "dkq" if kind == "quad" else "dkt"
+    path = scene(tmp_path, f'element = "{element}"\nmesh = "plate.inp"\nthickness = 0.002\n' + MATERIAL)
+    capsys.readouterr()
+    code = main(["modes", "--quiet", str(path)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "[model.mesh]" in err, err
+    assert f"{kind} cell 0 " in err and "degenerate" in err, err
+
+
+def test_conditions_that_fix_every_dof_are_one_line_exit_2(tmp_path, capsys):
+    """A box around the whole plate clamping all six dofs leaves no dof: a scene error naming
+    [model.boundary] (exit 2), not "the model has no dofs (K is 0 x 0)" from the solver's matrices (exit 3,
+    as before)."""
+    plate_file(tmp_path / "plate.inp")
+    path = scene(tmp_path, 'mesh = "plate.inp"\nthickness = 0.002\n' + MATERIAL + '[[model.boundary]]\n'
+                 'box = [[-1, -1, -1], [1, 1, 1]]\ndofs = ["ux", "uy", "uz", "rx", "ry", "rz"]\n')
+    capsys.readouterr()
+    code = main(["modes", "--quiet", str(path)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "[model.boundary]" in err and "all 90 dofs" in err, err
