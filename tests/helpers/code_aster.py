@@ -181,3 +181,15 @@ def catalogue_variants(tmp_path) -> dict[str, str]:
             for job in ("forces", "matrices"):
                 out[f"{route}: {label}, {job}"] = rendered(ad, folder, job, label)
     return out
+
+
+def install_fake_run_aster(folder: Path) -> Path:
+    """:data:`FAKE_RUN_ASTER` written as the executable ``folder/bin/run_aster`` (for this interpreter)."""
+    import stat
+    import sys
+
+    exe = folder / "bin" / "run_aster"
+    exe.parent.mkdir()
+    exe.write_text(FAKE_RUN_ASTER.format(python=sys.executable))
+    exe.chmod(exe.stat().st_mode | stat.S_IEXEC)
+    return exe

@@ -405,13 +405,15 @@ class CodeAsterAdapter(SolidFromScene, CapSolid, ExternalSolverAdapter):
         self._write_model(workdir, U)
         return self.render_job(workdir, "forces", len(U))
 
-    def read_forces(self, workdir: Path, m: int) -> np.ndarray:
+    def force_steps(self, workdir: Path) -> list:  # the steps of forces.rmed (or a missing-output error)
         (rmed,) = require_files(workdir, ["forces.rmed"], log=workdir / "solver.log", what="code_aster")
         try:
-            steps = read_nodal_steps(rmed, FIELD_OUT)
+            return read_nodal_steps(rmed, FIELD_OUT)
         except MedError as exc:
             raise missing_output(workdir, f"code_aster output incomplete: {exc}") from None
-        by_time = {int(round(s.time)): s for s in steps if abs(s.time - round(s.time)) < 1e-9}
+
+    def read_forces(self, workdir: Path, m: int) -> np.ndarray:
+        by_time = {int(round(s.time)): s for s in self.force_steps(workdir) if abs(s.time - round(s.time)) < 1e-9}
         n = len(self.points)
         F = np.empty((m, 3 * n))
         for i in range(1, m + 1):

@@ -24,12 +24,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from stepnf.errors import SceneError
-from stepnf.external import missing_output, require_files
+from stepnf.external import missing_output
 from stepnf.plugin.boundary import FreeDofs, select_nodes
 
 from .adapter import FIELD_IN, FIELD_OUT, REAL, CodeAsterAdapter, load_matrices_npz
 from .materials import is_plain, python_str
-from .med import MedError, add_nodal_field, read_groups, read_mesh_nodes, read_nodal_steps
+from .med import MedError, add_nodal_field, read_groups, read_mesh_nodes
 
 #: ``element`` -> (code_aster ``MODELISATION``, MED cell types of the shell, MED types whose last node is a
 #: rotation-only centre node)
@@ -197,12 +197,7 @@ class CodeAsterShellAdapter(CodeAsterAdapter):
             add_nodal_field(workdir / "model.med", FIELD_IN, SHELL_COMPONENTS, steps, mesh_name=self.mesh_name)
 
     def read_forces(self, workdir: Path, m: int) -> np.ndarray:
-        (rmed,) = require_files(workdir, ["forces.rmed"], log=workdir / "solver.log", what="code_aster")
-        try:
-            steps = read_nodal_steps(rmed, FIELD_OUT)
-        except MedError as exc:
-            raise missing_output(workdir, f"code_aster output incomplete: {exc}") from None
-        return self.free_part(forces_from_steps(steps, self.dof_node, self.dof_code, len(self.points), m, workdir))
+        return self.free_part(forces_from_steps(self.force_steps(workdir), self.dof_node, self.dof_code, len(self.points), m, workdir))
 
     def _read_matrices(self, path: Path, workdir: Path) -> tuple[sp.csr_matrix, sp.csr_matrix]:
         n_eq, nodes, comps, K, M = load_matrices_npz(path)

@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import ast
 import re
-import stat
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +15,7 @@ import scipy.sparse as sp
 from stepnf.errors import SceneError, SolverRunError
 
 ca = pytest.importorskip("stepnf_code_aster")
-from helpers.code_aster import FAKE_RUN_ASTER  # noqa: E402
+from helpers.code_aster import install_fake_run_aster  # noqa: E402
 
 CodeAsterAdapter = ca.CodeAsterAdapter
 
@@ -110,11 +108,7 @@ def test_unfilled_placeholder_in_user_template(tmp_path):
 # ---------------------------------------------------------- fake run_aster
 @pytest.fixture
 def fake_run_aster(tmp_path):
-    exe = tmp_path / "bin" / "run_aster"
-    exe.parent.mkdir()
-    exe.write_text(FAKE_RUN_ASTER.format(python=sys.executable))
-    exe.chmod(exe.stat().st_mode | stat.S_IEXEC)
-    return exe
+    return install_fake_run_aster(tmp_path)
 
 
 @pytest.mark.parametrize("route", ["stat_non_line", "calcul"])

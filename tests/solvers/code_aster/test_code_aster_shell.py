@@ -9,8 +9,6 @@ of a real DKT result with rotations (``static_shell_cantilever_code_aster.rmed``
 from __future__ import annotations
 
 import dataclasses
-import stat
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +22,7 @@ from stepnf.plugin.boundary import BoundaryCondition
 
 ca = pytest.importorskip("stepnf_code_aster")
 pytest.importorskip("h5py")
-from helpers.code_aster import FAKE_RUN_ASTER, ISO, from_mesh, grouped_med, shell_plate_med  # noqa: E402
+from helpers.code_aster import ISO, install_fake_run_aster, from_mesh, grouped_med, shell_plate_med  # noqa: E402
 from stepnf_code_aster.med import read_mesh_nodes, read_nodal_steps  # noqa: E402
 from stepnf_code_aster.shell import CodeAsterShellAdapter, forces_from_steps, read_cells  # noqa: E402
 
@@ -77,11 +75,7 @@ def test_clamp_fixes_rotations_and_simple_support_does_not(tmp_path):
 # ------------------------------------------------------------------ file round trip
 @pytest.fixture
 def fake_run_aster(tmp_path):
-    exe = tmp_path / "bin" / "run_aster"
-    exe.parent.mkdir()
-    exe.write_text(FAKE_RUN_ASTER.format(python=sys.executable))
-    exe.chmod(exe.stat().st_mode | stat.S_IEXEC)
-    return exe
+    return install_fake_run_aster(tmp_path)
 
 
 def test_forces_moments_and_matrices_round_trip_through_fake_run_aster(tmp_path, fake_run_aster):
