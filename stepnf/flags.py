@@ -69,6 +69,9 @@ _KINDS = (
                       "diverges"),
     FlagKind("internal_resonance_1_m", "block", names_mode=True,
              template="DPIM: mode s is near m w_p (harmonic m of the parametrisation): a small denominator"),
+    FlagKind("manifold_small_denominator", "block", names_mode=True,
+             template="DPIM manifold: mode s, outside the manifold, is near a combination of the masters' "
+                      "frequencies that a monomial of the parametrisation has: a small denominator"),
     FlagKind("diverges", "line", t_na="always",
              template="T is infinite: the method meets a zero denominator (the verdict of :func:`t_unusable` for "
                       "a T that is not finite, whatever the method's flags; no module emits it as a flag)"),

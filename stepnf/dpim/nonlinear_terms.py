@@ -159,20 +159,30 @@ class OrderForcing:
 
     def __call__(self, Y: dict[tuple[int, int], np.ndarray], p: int) -> tuple[np.ndarray, np.ndarray]:
         """``(ms, F)``: ``F[j]`` (n,) the ``cos(ms[j] theta)`` coefficient of order p's forcing, ms = p, p-2, ..."""
-        t = OrderTerms.of(p, self.order)
         for q in range(1, p):
             self._unit_vectors(Y, q)
+        Fn = self.node_forcing(p)
+        ms, B = self.bases[p % 2]
+        coef = np.linalg.solve(B, Fn)  # every harmonic of the parity the nodes resolve; those above p are 0
+        keep = ms <= p
+        return ms[keep], coef[keep]
+
+    def node_forcing(self, p: int, fields: dict[int, tuple[np.ndarray, np.ndarray]] | None = None) -> np.ndarray:
+        """``F_p`` at the nodes (J, n), from the fields of orders 1..p-1 at the nodes: those of :meth:`__call__`,
+        or ``fields`` ``{q: (w_q, K w_q)}`` (each (J, n), real) given here for the orders not given yet (the
+        multi-mode manifold, :mod:`stepnf.dpim.multimode.monomials`, whose nodes are its sample points)."""
+        for q, (W, KW) in (fields or {}).items():
+            if q not in self._units:
+                self._set_units(q, W, KW)
+        t = OrderTerms.of(p, self.order)
         new = sorted((t.g_directions() | t.h_directions()) - self._sent)
         self._evaluate(new, p)
         self._sent.update(new)
         Fn = self._node_values(t)
-        ms, B = self.bases[p % 2]
-        coef = np.linalg.solve(B, Fn)  # every harmonic of the parity the nodes resolve; those above p are 0
-        keep = ms <= p
         self._forget(p)
         self.stats.quadratic_terms += len(t.pairs) + (t.square is not None)
         self.stats.cubic_terms += len(t.cubes) + len(t.uuv) + len(t.uvw)
-        return ms[keep], coef[keep]
+        return Fn
 
     # ------------------------------------------------------------ internals
     def _unit_vectors(self, Y: dict[tuple[int, int], np.ndarray], q: int) -> None:
@@ -182,8 +192,10 @@ class OrderForcing:
         mq = np.arange(q % 2, q + 1, 2)
         C = np.cos(np.outer(self.theta, mq))
         Yq = np.stack([Y[(q, m)] for m in mq])
-        W = C @ Yq
-        KW = C @ (self._K_block @ Yq.T).T
+        self._set_units(q, C @ Yq, C @ (self._K_block @ Yq.T).T)
+
+    def _set_units(self, q: int, W: np.ndarray, KW: np.ndarray) -> None:
+        """Keep ``|w_q|_inf``, ``u_q`` and ``K u_q`` at the nodes from ``w_q`` and ``K w_q`` (J, n)."""
         norms = np.abs(W).max(axis=1)
         inv = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 0.0)[:, None]
         self._units[q] = (norms, W * inv, KW * inv)

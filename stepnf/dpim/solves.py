@@ -141,11 +141,7 @@ class ShiftedSolves:
         """Free every kept factorisation (``release()`` of those that have one: a MUMPS factorisation keeps
         its memory until it is destroyed, dropping the object is not enough)."""
         self._cache.clear()
-        for fac in self._factors:
-            free = getattr(fac, "release", None)
-            if callable(free):
-                free()
-        self._factors.clear()
+        release_all(self._factors)
 
     # ------------------------------------------------------------ internals
     def _make(self, m: int, sigma: float) -> Solve:
@@ -256,6 +252,16 @@ class ShiftedSolves:
             solver = lambda rhs: fac.solve(np.concatenate([rhs, np.zeros(k)]))[:n]  # noqa: E731
             self._cache[-1.0] = solver
         return solver(b)
+
+
+def release_all(factors: list[Any]) -> None:
+    """``release()`` every factorisation of ``factors`` that has one, then empty the list (a MUMPS factorisation
+    keeps its memory until it is destroyed)."""
+    for fac in factors:
+        free = getattr(fac, "release", None)
+        if callable(free):
+            free()
+    factors.clear()
 
 
 def _same(y: np.ndarray) -> np.ndarray:

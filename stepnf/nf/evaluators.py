@@ -302,7 +302,8 @@ def dnf(p: int, phi: np.ndarray, omega_p: float, Gv: np.ndarray, h: float, ctx: 
         res.extra["T_change"] = res.T_error
     if rounding is not None:
         rel, parts = dnf_roundoff(phi, rounding.q, omega_p, T, Gv, rounding.Hv, y, z, ctx.K, ctx.M, rounding.digits,
-                                  slope=dnf_slope(w2, A + h + w2 * B, res.extra["dB_dlambda"]))
+                                  slope=dnf_slope(w2, A + h + w2 * B, res.extra["dB_dlambda"]),
+                                  excess=rounding.excess)
         res.extra.update(roundoff=rel, **{f"roundoff_{k}": v for k, v in parts.items()})
         res.T_error = rel if res.T_error is None else max(res.T_error, rel)
     return res, y

@@ -38,6 +38,12 @@ whose force is an exact cubic, and STEP along the quadratic manifold removes the
 The quadratic manifolds (MD, SMD: ``C4 = k2/2 + 2 t + h``, :func:`stepnf.nf.coefficient.qm_coefficients`)
 cancel the same way; :func:`qm_roundoff` bounds them alike. ``dT_lambda`` does not fall with ``q``: it is
 kept apart (``extra["roundoff_dT_lambda"]``) so the raise of the amplitude is decided without it.
+
+Where STEP's own changes grow as the amplitude shrinks and exceed this per-entry model's bound (a third
+amplitude shows a rate below :data:`stepnf.step.truncation.NOISE_RATE`), the model is shown short by that
+factor (``MasterStep.rounding_excess``: 3e4 on the paper's plate at 1e-6 h, whose solid forces round at eps
+of the unit Green-Lagrange strain, not of the strain): the forces' part of the bound is multiplied by it
+(:class:`Rounding` ``excess``; ``extra["roundoff_excess"]``).
 """
 from __future__ import annotations
 
@@ -58,11 +64,14 @@ EPS = float(np.finfo(float).eps)
 class Rounding:
     """What the full-order evaluators (:func:`dnf`, :func:`smd_full`, :func:`md_full`) need to bound T's
     rounding (:mod:`stepnf.nf.roundoff`): the STEP amplitude ``q`` (modal), ``H(phi_p, phi_p, phi_p)`` (n,)
-    or None, and the solver's printed force digits (None: full double precision)."""
+    or None, the solver's printed force digits (None: full double precision) and ``excess``, the factor by
+    which STEP's own changes showed the per-entry rounding model short (``MasterStep.rounding_excess``, at
+    least 1): the forces' part of the bound is multiplied by it."""
 
     q: float
     Hv: np.ndarray | None = None
     digits: int | None = None
+    excess: float = 1.0
 
 
 def printed_rounding(digits: int | None) -> float:
@@ -98,16 +107,18 @@ def step_rounding(kp: np.ndarray, K: sp.spmatrix | None, phi: np.ndarray, q: flo
 
 def dnf_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.ndarray, Hv: np.ndarray | None,
                  y: np.ndarray, z: np.ndarray, K: sp.spmatrix, M: sp.spmatrix,
-                 digits: int | None, slope: float | None = None) -> tuple[float, dict]:
+                 digits: int | None, slope: float | None = None, excess: float = 1.0) -> tuple[float, dict]:
     """Relative error of DNF's T that rounding leaves (module docstring), and its parts.
 
     ``phi`` mass-normalised (n,), ``q`` the STEP amplitude (modal), ``Gv``, ``Hv`` = G(phi, phi),
     H(phi, phi, phi) (n,; ``Hv`` None: the cubic force is left out of ``|f|``), ``y``, ``z`` DNF's two
     solutions, ``digits`` the solver's printed force digits (None: full double precision), ``slope``
-    = ``lambda dT/dlambda`` (:func:`dnf_slope`; None: the eigenvalue's part left out).
+    = ``lambda dT/dlambda`` (:func:`dnf_slope`; None: the eigenvalue's part left out), ``excess``
+    (:class:`Rounding`) the factor on the forces' part (``dh``, ``dA``, ``dB`` as computed, before it).
     Returns ``(dT / |T|, parts)`` with ``parts`` = ``dh``, ``dA``, ``dB``, ``dT_lambda`` (the master's own
     eigenvalue error through T: :func:`eigenvalue_part`), ``dT`` (absolute, the model's units; ``dT``
-    holds ``dT_lambda``), ``eps_lambda`` and ``lambda_slope``; ``inf`` when T is 0 with a non-zero bound.
+    holds ``dT_lambda``), ``eps_lambda``, ``lambda_slope`` and ``excess`` (when not 1); ``inf`` when T is 0
+    with a non-zero bound.
     """
     w2 = omega_p ** 2
     aphi, ay, az = np.abs(phi), np.abs(y), np.abs(z)
@@ -119,21 +130,23 @@ def dnf_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.nda
     dG = np.linalg.norm(own + printed) / q ** 2
     dB = 8.0 * float(ay @ abs_product(M, az)[:, 0]) * (float(dG) / gn if gn > 0 else 0.0)
     eps_lam, dT_lam = eigenvalue_part(K, phi, omega_p, slope) if slope is not None else (0.0, 0.0)
-    dT = (3.0 * (dh + dA) + w2 * dB) / (8.0 * w2) + dT_lam
+    dT = excess * (3.0 * (dh + dA) + w2 * dB) / (8.0 * w2) + dT_lam
     rel = dT / abs(T) if T != 0 else (0.0 if dT == 0 else np.inf)
-    return float(rel), {"dh": dh, "dA": dA, "dB": dB, "dT_lambda": float(dT_lam), "dT": float(dT),
-                        "eps_lambda": eps_lam, "lambda_slope": float(slope or 0.0)}
+    parts = {"dh": dh, "dA": dA, "dB": dB, "dT_lambda": float(dT_lam), "dT": float(dT), "eps_lambda": eps_lam,
+             "lambda_slope": float(slope or 0.0)}
+    return float(rel), parts | ({"excess": float(excess)} if excess != 1.0 else {})
 
 
 def qm_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.ndarray, Hv: np.ndarray | None,
                 theta: np.ndarray, K: sp.spmatrix, digits: int | None,
-                slope: float | None = None) -> tuple[float, dict]:
+                slope: float | None = None, excess: float = 1.0) -> tuple[float, dict]:
     """Relative error of a quadratic manifold's T (MD, SMD: ``theta`` its modal derivative) that rounding
     leaves through ``C4 = k2/2 + 2 t + h`` (``k2 = theta^T K theta``, ``t = theta^T Gv``): ``dC4 = dh +
     2 |theta|^T dGv + eps |theta|^T |K| |theta|``, ``dT = 3 dC4 / (8 w^2)`` (T's other terms do not cancel),
     plus the master's eigenvalue error through ``slope`` = ``lambda dT/dlambda`` (:func:`qm_slope`; None: left
-    out). Returns ``(dT / |T|, parts)``, ``parts`` as :func:`dnf_roundoff`'s: ``dC4``, ``dT_lambda``, ``dT``,
-    ``eps_lambda``, ``lambda_slope``."""
+    out), ``excess`` the factor on ``dC4`` (:class:`Rounding`). Returns ``(dT / |T|, parts)``, ``parts`` as
+    :func:`dnf_roundoff`'s: ``dC4`` (before the factor), ``dT_lambda``, ``dT``, ``eps_lambda``,
+    ``lambda_slope``, ``excess`` (when not 1)."""
     w2 = omega_p ** 2
     aphi, ath = np.abs(phi), np.abs(theta)
     kp, kt = abs_product(K, np.column_stack([aphi, ath])).T
@@ -141,10 +154,11 @@ def qm_roundoff(phi: np.ndarray, q: float, omega_p: float, T: float, Gv: np.ndar
     dC4 = (weighted_rounding(aphi, own, printed) / q ** 3 + 2.0 * weighted_rounding(ath, own, printed) / q ** 2
            + EPS * float(ath @ kt))
     eps_lam, dT_lam = eigenvalue_part(K, phi, omega_p, slope) if slope is not None else (0.0, 0.0)
-    dT = 3.0 * dC4 / (8.0 * w2) + dT_lam
+    dT = excess * 3.0 * dC4 / (8.0 * w2) + dT_lam
     rel = float(dT / abs(T)) if T != 0 else (0.0 if dT == 0 else np.inf)
-    return rel, {"dC4": float(dC4), "dT_lambda": float(dT_lam), "dT": float(dT), "eps_lambda": eps_lam,
-                 "lambda_slope": float(slope or 0.0)}
+    parts = {"dC4": float(dC4), "dT_lambda": float(dT_lam), "dT": float(dT), "eps_lambda": eps_lam,
+             "lambda_slope": float(slope or 0.0)}
+    return rel, parts | ({"excess": float(excess)} if excess != 1.0 else {})
 
 
 def eigenvalue_roundoff(K: sp.spmatrix, phi: np.ndarray, lam: np.ndarray) -> np.ndarray:
@@ -279,8 +293,11 @@ def roundoff_message(p: int, T: float, extra: dict, tolerance: float) -> str:
     amp, parts = max(total - eig, 0.0), []
     if amp > 0 or not eig > 0:
         c = float(extra.get("cancellation", np.nan))
+        x = float(extra.get("roundoff_excess", 1.0))
         parts.append(f"{amp:.1e} from the forces' rounding and the solves"
-                     + (f" (T's terms cancel {c:.2g}-fold)" if np.isfinite(c) else ""))
+                     + (f" (T's terms cancel {c:.2g}-fold)" if np.isfinite(c) else "")
+                     + (f" (x {x:.2g}: STEP's own changes grew as the amplitude shrank, {x:.2g} times their "
+                        "rounding bound)" if x > 1.0 else ""))
     if eig > 0:
         sens = abs(float(extra.get("roundoff_lambda_slope", 0.0)) / T)  # eig = (c eps_lambda) sens
         parts.append(f"{eig:.1e} from mode {p}'s own eigenvalue (resolved to about {eig / sens:.0e}, times "
@@ -304,7 +321,7 @@ def with_qm_roundoff(res: MethodResult, phi: np.ndarray, omega_p: float, Gv: np.
         w2 = omega_p ** 2
         slope = qm_slope(omega_p, float(phi @ Gv), h, (float(res.C[1]) / w2, *forms), s)
     rel, parts = qm_roundoff(phi, rounding.q, omega_p, res.T, Gv, rounding.Hv, theta, K, rounding.digits,
-                             slope=slope)
+                             slope=slope, excess=rounding.excess)
     res.extra.update({f"roundoff_{k}": v for k, v in parts.items()})
     res.extra["T_change"], res.extra["roundoff"] = res.T_error, rel
     res.T_error = rel if res.T_error is None else max(res.T_error, rel)

@@ -103,7 +103,7 @@ def rounding_of(state: StageView, st: MasterStep) -> Rounding | None:
     None for STEP from tangent stiffnesses (``[analysis.step] method = "tangent"``: the bound models forces)."""
     if state.policy.method == "tangent":
         return None
-    return Rounding(st.q, st.Hv, getattr(state.adapter, "force_digits", None))
+    return Rounding(st.q, st.Hv, getattr(state.adapter, "force_digits", None), st.rounding_excess)
 
 
 def run_md_full(state: StageView, d: MasterData) -> MethodResult:

@@ -75,5 +75,7 @@ def mode_record(state: StageView, d: MasterData) -> ModeResult:
                     "error_h": st.error_h}
         if st.amplitudes:  # a force that is not an exact cubic: the third amplitude and the observed rates
             rec.step.update(amplitudes=list(st.amplitudes), rate_G=st.rate_G, rate_h=st.rate_h)
+        if st.rounding_excess > 1.0:  # rounding beyond the model's bound, shown by the changes themselves
+            rec.step["rounding_excess"] = st.rounding_excess
         rec.flags += st.flags
     return rec

@@ -112,6 +112,10 @@ class MasterStep:
     amplitudes: tuple[float, ...] = ()
     rate_G: float | None = None
     rate_h: float | None = None
+    #: how many times the changes that grew as the amplitude shrank (rounding, rate below
+    #: :data:`stepnf.step.truncation.NOISE_RATE`) exceeded their rounding bound: rounding the per-entry model
+    #: of :mod:`stepnf.nf.roundoff` did not foresee, by which T's rounding bound is scaled (1: none shown)
+    rounding_excess: float = 1.0
 
 
 def targeted_step(forces: ForceEvaluator, K: sp.spmatrix, phi: np.ndarray, q: float,

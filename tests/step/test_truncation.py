@@ -151,3 +151,50 @@ def test_unconverged_fit_gets_one_flag_not_the_contradicting_amplitude_advice():
     K, Phi, forces, _, _, _ = _system(trig)
     st, _, _ = _step(K, Phi[:, 0], forces, 6.0)
     assert "step_unconverged" in _kinds(st) and "step_accuracy" not in _kinds(st)
+
+
+def _noise(U):
+    """An amplitude-independent "rounding" the per-entry model (eps (|K| |u|)_i + eps |f_i|) does not foresee:
+    1e-9 times a deterministic function of u that changes sign with its last digits (even and odd parts, so
+    both STEP combinations carry it), like the Green-Lagrange strain's rounding at eps of 1 in a solid."""
+    return 1e-9 * (np.sin(1e8 * U) + np.cos(1.3e8 * U))
+
+
+def test_rounding_beyond_its_bound_scales_the_bound():
+    """A force whose rounding does not fall with the amplitude: at a peak of 1e-4 its noise (1e-9 / q^2 in G)
+    grows as the amplitude shrinks (rate below NOISE_RATE) and exceeds the per-entry bound (~eps of the
+    forces) by orders: ``rounding_excess`` is that ratio (measured 5.5e9; G changes by 0.24), by which T's rounding bound
+    (stepnf.nf.roundoff.dnf_roundoff) is then multiplied. An exact cubic keeps 1 (no third amplitude).
+
+    Before: ``MasterStep`` had no ``rounding_excess`` and T's bound ignored the STEP's own evidence (issue 31:
+    the paper's plate at 1e-6 h printed T = -4.78e9 with a bound of 0.94 T, actual error 1.00002 T).
+    """
+    from stepnf.step.truncation import NOISE_RATE
+
+    K, Phi, forces, _, _, _ = _system(_noise)
+    st, counters, q = _step(K, Phi[:, 0], forces, 1e-4)
+    assert counters.force_evaluations == 6  # the third amplitude ran: the change is far above its bound
+    assert st.rate_G is not None and st.rate_G < NOISE_RATE
+    change = np.linalg.norm(st.Gv - st.Gv_check)  # noise ~1e-9 / q^2 against G ~ 1: measured 0.24
+    assert st.rounding_excess > 1e3, (st.rounding_excess, change)
+    clean = _system(lambda U: 0.0 * U)
+    st0, _, _ = _step(clean[0], clean[1][:, 0], clean[2], 1e-4)
+    assert st0.rounding_excess == 1.0  # an exact cubic: its changes are within the bound (no third amplitude)
+
+
+def test_roundoff_bound_scales_with_the_excess():
+    """dnf_roundoff's forces part is multiplied by ``excess``; the eigenvalue part is not (it does not come from
+    the forces): exact arithmetic of the formula, so equality to a few ulps (1e-14)."""
+    import scipy.sparse as sp
+    from stepnf.nf.roundoff import dnf_roundoff
+
+    K, Phi, _, Gex, hex_, omega = _system(lambda U: 0.0 * U)
+    Ks, Ms = sp.csr_matrix(K), sp.csr_matrix(np.eye(N))
+    rng = np.random.default_rng(1)
+    y, z = rng.standard_normal(N), rng.standard_normal(N)
+    args = (Phi[:, 0], 1e-3, omega[0], 0.7, Gex[:, 0], None, y, z, Ks, Ms, None)
+    r1, p1 = dnf_roundoff(*args, slope=2.0)
+    r5, p5 = dnf_roundoff(*args, slope=2.0, excess=5.0)
+    forces_part = p1["dT"] - p1["dT_lambda"]
+    assert p5["dT"] == pytest.approx(5.0 * forces_part + p1["dT_lambda"], rel=1e-14)
+    assert r5 == pytest.approx(p5["dT"] / 0.7, rel=1e-14) and p5["excess"] == 5.0

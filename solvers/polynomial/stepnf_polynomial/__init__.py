@@ -2,8 +2,10 @@
 
 ``f(u)_i = sum_j K_ij u_j + sum_jk G_ijk u_j u_k + sum_jkl H_ijkl u_j u_k u_l``
 
-read from an ``.npz`` or HDF5 file (``.h5``/``.hdf5``) holding arrays ``M``
-(n, n), ``K`` (n, n), ``G`` (n, n, n), ``H`` (n, n, n, n), and optionally
+read from an ``.npz``, HDF5 (``.h5``/``.hdf5``) or MATLAB ``.mat`` file holding arrays ``M``
+(n, n), ``K`` (n, n), ``G`` (n, n, n), ``H`` (n, n, n, n), or any of them as a coordinate list
+(``G_subs`` (k, 3) and ``G_vals`` (k,), ...; 0-based, 1-based in ``.mat``; sparse M and K; see
+:mod:`.sparse_tensors` and docs/adapters.md: forces then cost O(nnz)), and optionally
 ``coordinates`` (n, 3), ``directions`` (n,) (codes of
 :data:`stepnf.plugin.adapter.DIRECTIONS`) and ``length`` (a characteristic length for
 the automatic STEP amplitude). ``G`` and ``H`` are symmetrised in their lower

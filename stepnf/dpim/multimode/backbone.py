@@ -1,0 +1,186 @@
+"""The backbone branches of one master on a multi-mode manifold: trace, measure, validity, table.
+
+:func:`backbone_branches` finds the starts of master ``mode``'s branches at a small amplitude
+(:func:`stepnf.dpim.multimode.branches.starts`: the branch that continues the linear mode and the coupled ones
+born at the resonance), continues each (:func:`stepnf.dpim.multimode.branches.continue_branch`) until master
+``mode``'s amplitude ``A`` reaches ``A_stop``, and measures every point
+(:class:`stepnf.dpim.multimode.measures.OrbitMeasure`) and its stability. :func:`omega_at` refines the
+frequency at a given amplitude on a branch (Brent's method along the chord between two points, each
+trial point corrected onto the branch: to round-off). Validity (:func:`validity`), as
+:mod:`stepnf.dpim.backbone`'s: the same branch of the manifold truncated at order N - 2, traced from the
+same start, and the largest ``A`` below which ``|k_j Omega_N(A) - k_j Omega_{N-2}(A)| <= tol omega_j``
+(``Omega_{N-2}`` at the same A by cubic interpolation of its points).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.optimize import brentq
+
+from stepnf.dpim.multimode.measures import OrbitMeasure, Transverse
+from stepnf.dpim.multimode.branches import Branch, ReducedSystem, continue_branch, normalise_phase, starts
+from stepnf.errors import NumericalError
+
+
+def _u(b: Branch, i: int) -> np.ndarray:
+    z = b.zeta[i]
+    return np.concatenate([z.real, z.imag, [b.Omega[i], b.eps[i]]])
+
+
+def trace(system: ReducedSystem, measure: OrbitMeasure, u0: np.ndarray, kind: str, mode: int, masters,
+          A_stop: float, *, max_points: int = 400, transverse: Transverse | None = None,
+          h: float = 1.0) -> Branch:
+    """The branch through the solution ``u0`` (``Re zeta_mode`` growing first) up to ``A_mode >= A_stop``,
+    measured (module docstring)."""
+    m = system.m
+    wmax = float(system.omega.max())
+
+    def stop(u: np.ndarray) -> bool:
+        A = measure.amplitudes(u[:m] + 1j * u[m:2 * m])
+        return bool(A[mode] >= A_stop or A.max() >= 10 * A_stop or not 0 < u[2 * m] < 3 * wmax)
+    direction = np.zeros(2 * m + 2)
+    direction[mode] = 1.0
+    pts, bps = continue_branch(system, u0, direction=direction, stop=stop, max_points=max_points)
+    zeta = np.asarray([normalise_phase(system, u[:m] + 1j * u[m:2 * m], mode) for u in pts])
+    A = np.asarray([measure.amplitudes(z) for z in zeta])
+    stable = np.asarray([system.stability(u)[0] for u in pts])
+    b = Branch(pts[:, 2 * m].copy(), zeta, A, stable, kind, tuple(masters), system.k.copy(), mode,
+               eps=pts[:, 2 * m + 1].copy(), branch_points=bps)
+    if transverse is not None:
+        b.W_max = np.asarray([measure.w_max(z, transverse, h) for z in zeta])
+    return b
+
+
+def backbone_branches(manifold: Any, mode: int, A_stop: float, *, ratios: Any = None, r0: float | None = None,
+                      tol: float | None = 1e-3, transverse: Transverse | None = None, h: float = 1.0,
+                      max_points: int = 400) -> list[Branch]:
+    """Master ``mode``'s branches (index into ``manifold.masters``) up to its amplitude ``A_stop`` (module
+    docstring). ``ratios``: the resonance vector (None: the manifold's; when it has none, ``k = e_mode``: the other
+    masters' kept monomials are those of every frequency, ``a - b = e_l``, and they stay at rest); ``r0``: the starting
+    ``|zeta_mode|`` (None: ``A_stop / 200``, ``A ~ 2 |zeta|``); ``tol``: the validity tolerance (None: no
+    validity); ``transverse``, ``h``: W_max as :meth:`stepnf.dpim.backbone.Backbone.w_max`."""
+    if ratios is None and manifold.ratios is None:  # no resonance between the masters: mode j alone moves
+        ratios = np.eye(len(manifold.masters), dtype=int)[mode]
+    system = ReducedSystem(manifold, ratios)
+    measure = OrbitMeasure(manifold, system.k)
+    r = A_stop / 200.0 if r0 is None else float(r0)
+    found = starts(system, mode, r)
+    if not found:
+        raise NumericalError(f"backbone branches: no periodic orbit of the reduced dynamics of masters "
+                             f"{list(manifold.masters)} starts at |zeta_{mode}| = {r:.3g}")
+    out = []
+    for kind, u0 in found:
+        b = trace(system, measure, u0, kind, mode, manifold.masters, A_stop, max_points=max_points,
+                  transverse=transverse, h=h)
+        if tol is not None:
+            b.valid_A, b.valid_reason = validity(manifold, b, tol, ratios=system.k, max_points=max_points)
+        out.append(b)
+    return out
+
+
+def omega_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> float:
+    """The fundamental ``Omega`` of ``branch`` where master ``branch.mode``'s amplitude is ``A`` (the first
+    crossing; NumericalError when the branch does not reach it), to round-off (module docstring)."""
+    return float(point_at(manifold, branch, A, ratios=ratios)[2 * len(branch.masters)])
+
+
+def point_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> np.ndarray:
+    """The point ``u = (Re zeta, Im zeta, Omega, eps)`` of ``branch`` where master ``branch.mode``'s amplitude
+    is ``A`` (as :func:`omega_at`); its stability: ``ReducedSystem(manifold).stability(u)``."""
+    system = ReducedSystem(manifold, branch.ratios if ratios is None else ratios)
+    measure = OrbitMeasure(manifold, system.k)
+    j, m = branch.mode, system.m
+    Aj = branch.A[:, j]
+    hit = np.flatnonzero((Aj[:-1] - A) * (Aj[1:] - A) <= 0)
+    if not len(hit):
+        raise NumericalError(f"backbone branch ({branch.kind}): the amplitude A = {A:.6g} of master {j} is not "
+                             f"on it (A from {Aj.min():.6g} to {Aj.max():.6g})")
+    i = int(hit[0])
+    u0, u1 = _u(branch, i), _u(branch, i + 1)
+    chord = u1 - u0
+
+    def on_branch(s: float) -> np.ndarray:
+        p = u0 + s * chord
+        done = system.correct(p, lambda v: (float(chord @ (v - p)), chord), p[:m] + 1j * p[m:2 * m])
+        if done is None:
+            raise NumericalError(f"backbone branch: Newton failed between points {i} and {i + 1}")
+        return done[0]
+
+    def g(s: float) -> float:
+        u = on_branch(s)
+        return float(measure.amplitudes(u[:m] + 1j * u[m:2 * m])[j] - A)
+    if A == Aj[i]:
+        return u0
+    if A == Aj[i + 1]:
+        return u1
+    return on_branch(brentq(g, 0.0, 1.0, xtol=1e-15, rtol=4 * np.finfo(float).eps))
+
+
+def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
+             max_points: int = 400) -> tuple[float | None, str]:
+    """``(A_max, reason)`` for ``branch`` of ``manifold`` at order N against order N - 2 (module docstring):
+    ``"orders differ"``, ``"amplitude folds"`` (A of the master stops growing first), ``"not reached"``
+    (A_max None) or ``"no lower order"`` (N < 5: A_max None)."""
+    N = int(manifold.order)
+    if N < 5:
+        return None, "no lower order"
+    lower = manifold.truncated(N - 2)
+    system = ReducedSystem(lower, branch.ratios if ratios is None else ratios)
+    measure = OrbitMeasure(lower, system.k)
+    j, m = branch.mode, system.m
+    u0 = _u(branch, 0)
+    g = np.zeros(2 * m + 2)
+    g[j] = 1.0
+    done = system.correct(u0, lambda v: (float(v[j] - u0[j]), g), u0[:m] + 1j * u0[m:2 * m], maxiter=40)
+    if done is None:
+        return 0.0, "orders differ"
+    A_top = float(branch.A[:, j].max())
+    low = trace(system, measure, done[0], branch.kind, j, branch.masters, A_top, max_points=max_points)
+    AL = low.A[:, j]
+    grow = int(np.argmax(np.diff(AL) <= 0)) + 1 if np.any(np.diff(AL) <= 0) else len(AL)
+    if grow < 4:
+        return 0.0, "orders differ"
+    spline = CubicSpline(AL[:grow], low.Omega[:grow])
+    w = float(np.asarray(manifold.omega)[j])
+    k = float(branch.ratios[j])
+    prev_A = 0.0
+    prev_d = -1.0
+    A = branch.A[:, j]
+    for i in range(len(A)):
+        if i and A[i] <= A[i - 1]:
+            return float(prev_A), "amplitude folds"
+        if A[i] > AL[grow - 1]:
+            return (float(prev_A), "orders differ") if grow < len(AL) else (None, "not reached")
+        d = abs(k * (branch.Omega[i] - float(spline(A[i])))) / (tol * w) - 1.0
+        if d > 0:
+            if i == 0:
+                return 0.0, "orders differ"
+
+            def excess(a: float) -> float:  # both frequencies refined on their branches
+                return abs(k * (omega_at(manifold, branch, a) - omega_at(lower, low, a))) / (tol * w) - 1.0
+            try:
+                return float(brentq(excess, prev_A, float(A[i]), xtol=1e-12 * float(A[i]))), "orders differ"
+            except (ValueError, NumericalError):  # no sign change once refined: the interpolated crossing
+                return float(prev_A + (A[i] - prev_A) * (-prev_d) / (d - prev_d)), "orders differ"
+        prev_A, prev_d = float(A[i]), d
+    return None, "not reached"
+
+
+def tabulate(branch: Branch, rows: int = 12) -> str:
+    """A compact table of ``branch``: about ``rows`` points evenly spread, ``k_j Omega``, every ``A_j``,
+    ``|zeta_j|``, stability (and W_max), with a header naming its kind, masters, ratios and validity."""
+    head = (f"branch '{branch.kind}' of master {branch.masters[branch.mode]} on the manifold "
+            f"{list(branch.masters)}, ratios {branch.ratios.tolist()}: {len(branch.Omega)} points, valid to A = "
+            + ("-" if branch.valid_A is None else f"{branch.valid_A:.4g}")
+            + (f" ({branch.valid_reason})" if branch.valid_reason else ""))
+    cols = ["Omega"] + [f"A_{q}" for q in branch.masters] + [f"|zeta_{q}|" for q in branch.masters]
+    cols += (["W_max"] if branch.W_max is not None else []) + ["stable"]
+    lines = [head, "  ".join(f"{c:>11s}" for c in cols)]
+    K = len(branch.Omega)
+    for i in sorted(set(np.linspace(0, K - 1, min(rows, K)).round().astype(int))):
+        vals = [branch.Omega[i], *branch.A[i], *np.abs(branch.zeta[i])]
+        vals += [branch.W_max[i]] if branch.W_max is not None else []
+        lines.append("  ".join(f"{v:11.6g}" for v in vals) + f"  {'yes' if branch.stable[i] else 'no':>11s}")
+    return "\n".join(lines)

@@ -1,0 +1,108 @@
+"""Amplitude measures of a periodic orbit of a manifold's reduced dynamics, as the single-mode backbone's.
+
+On the orbit ``z_j(t) = zeta_j e^{i k_j Omega t}`` (:mod:`stepnf.dpim.multimode.branches`) the displacement
+``x(t) = W(z(t)) = sum_alpha W[alpha] zeta^alpha e^{i n_alpha theta}``, ``theta = Omega t``,
+``n_alpha = sum_l (a_l - b_l) k_l``: a Fourier series in ``theta`` with integer harmonics
+``|n| <= N max(k)``. Master j's modal coordinate ``q_j = phi_j^T M x`` is the series of the scalars
+``phi_j^T M W[alpha]`` (formed once), and its amplitude, as :mod:`stepnf.dpim.backbone` defines it, is
+``A_j = (max_theta q_j - min_theta q_j) / 2``: found on a grid of ``64 N max(k)`` points over one period and
+refined by Newton's method on the series' derivative (to round-off). ``W_max`` is the largest ``|x_i|``
+over the transverse dofs and the period, found the same way.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+Transverse = Callable[[np.ndarray], np.ndarray] | Sequence[int] | np.ndarray
+
+
+class OrbitMeasure:
+    """``A_j`` and ``W_max`` of the orbits of ``manifold`` (``W``, ``phi`` (n, m), ``M``, ``order``) for the
+    resonance vector ``ratios`` (module docstring)."""
+
+    def __init__(self, manifold: Any, ratios: Any):
+        k = np.asarray(ratios, dtype=int)
+        m = len(k)
+        self.keys = [a for a in manifold.W if sum(a) >= 1]
+        self.E = np.asarray(self.keys, dtype=int).reshape(len(self.keys), 2 * m)
+        self.n_of = (self.E[:, :m] - self.E[:, m:]) @ k  # harmonic of each monomial
+        self.nmax = int(np.abs(self.n_of).max())
+        self.pmax = int(self.E.max())
+        Ws = np.column_stack([np.asarray(manifold.W[a]) for a in self.keys])  # (n, terms)
+        self.Ws = Ws
+        phi = np.asarray(manifold.phi).reshape(Ws.shape[0], m)
+        self.P = (np.asarray(manifold.M @ phi).T) @ Ws  # (m, terms): phi_j^T M W[alpha]
+        self.theta = np.linspace(0.0, 2 * np.pi, 64 * int(manifold.order) * max(int(np.abs(k).max()), 1),
+                                 endpoint=False)
+        ns = np.arange(self.nmax + 1)
+        self._cos, self._sin = np.cos(np.outer(ns, self.theta)), np.sin(np.outer(ns, self.theta))
+        self._transverse: tuple | None = None
+
+    def _monomials(self, zeta: np.ndarray) -> np.ndarray:
+        z = np.concatenate([zeta, np.conj(zeta)])
+        pw = z[:, None] ** np.arange(self.pmax + 1)[None, :]
+        return np.prod(pw[np.arange(len(z))[None, :], self.E], axis=1)  # (terms,)
+
+    def _series(self, coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(a, b)`` (rows, nmax + 1) with ``q = sum_n a_n cos(n theta) + b_n sin(n theta)`` from the
+        complex coefficients ``coef`` (rows, terms) of the monomials' ``e^{i n theta}``."""
+        C = np.zeros((coef.shape[0], 2 * self.nmax + 1), dtype=complex)
+        for n in np.unique(self.n_of):
+            C[:, n + self.nmax] = coef[:, self.n_of == n].sum(axis=1)
+        pos, neg = C[:, self.nmax:], C[:, self.nmax::-1]  # c_n and c_-n, n >= 0
+        a = (pos + neg).real
+        a[:, 0] = C[:, self.nmax].real
+        b = (-(pos - neg).imag)
+        b[:, 0] = 0.0
+        return a, b
+
+    def amplitudes(self, zeta: np.ndarray) -> np.ndarray:
+        """``A_j`` (m,) of every master on the orbit of ``zeta`` (module docstring)."""
+        a, b = self._series(self.P * self._monomials(zeta)[None, :])
+        q = a @ self._cos + b @ self._sin
+        out = []
+        for j in range(len(a)):
+            hi = _refine(a[j], b[j], self.theta, int(np.argmax(q[j])), maximise=True)
+            lo = _refine(a[j], b[j], self.theta, int(np.argmin(q[j])), maximise=False)
+            out.append(0.5 * (hi - lo))
+        return np.asarray(out)
+
+    def w_max(self, zeta: np.ndarray, transverse: Transverse, h: float = 1.0) -> float:
+        """Largest ``|x_i|`` over the transverse dofs and the period, divided by ``h``: ``transverse`` the
+        indices of those dofs or a callable mapping fields (n, k) to transverse displacements (t, k)."""
+        if self._transverse is None or self._transverse[0] is not transverse:
+            T = transverse(self.Ws) if callable(transverse) else self.Ws[np.asarray(transverse)]
+            self._transverse = (transverse, np.asarray(T))
+        a, b = self._series(self._transverse[1] * self._monomials(zeta)[None, :])
+        x = a @ self._cos + b @ self._sin
+        i, t = np.unravel_index(int(np.argmax(np.abs(x))), x.shape)
+        sign = 1.0 if x[i, t] >= 0 else -1.0
+        return _refine(sign * a[i], sign * b[i], self.theta, int(t), maximise=True) / h
+
+
+def _refine(a: np.ndarray, b: np.ndarray, grid: np.ndarray, i: int, *, maximise: bool) -> float:
+    """Extremum of ``f(t) = sum_n a_n cos(n t) + b_n sin(n t)`` near ``grid[i]``: Newton on ``f'`` kept
+    within one grid spacing (as :func:`stepnf.dpim.backbone._refine`, with sines)."""
+    ns = np.arange(len(a))
+    h = grid[1] - grid[0]
+    t0 = t = float(grid[i])
+
+    def f(s: float) -> float:
+        return float(a @ np.cos(ns * s) + b @ np.sin(ns * s))
+    for _ in range(30):
+        c, s_ = np.cos(ns * t), np.sin(ns * t)
+        d1 = float(np.sum(ns * (b * c - a * s_)))
+        d2 = -float(np.sum(ns * ns * (a * c + b * s_)))
+        if d2 == 0 or (d2 > 0 if maximise else d2 < 0):
+            break
+        step = d1 / d2
+        t -= step
+        if abs(t - t0) > h:
+            t = t0
+            break
+        if abs(step) <= 1e-15 * max(1.0, abs(t)):
+            break
+    best, g = f(t), f(t0)
+    return max(best, g) if maximise else min(best, g)
