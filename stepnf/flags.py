@@ -72,6 +72,9 @@ _KINDS = (
     FlagKind("manifold_small_denominator", "block", names_mode=True,
              template="DPIM manifold: mode s, outside the manifold, is near a combination of the masters' "
                       "frequencies that a monomial of the parametrisation has: a small denominator"),
+    FlagKind("manifold_no_own_branch", "block",
+             template="no periodic orbit of the manifold's reduced dynamics continues master mode p's linear mode "
+                      "(an exact resonance: the coupled branches take its place); its backbone has no amplitudes"),
     FlagKind("diverges", "line", t_na="always",
              template="T is infinite: the method meets a zero denominator (the verdict of :func:`t_unusable` for "
                       "a T that is not finite, whatever the method's flags; no module emits it as a flag)"),

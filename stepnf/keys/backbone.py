@@ -8,6 +8,9 @@
     w_over_h = [0.5, 1.0]      # optional: W_max / h values (needs a thickness and transverse dofs)
     tolerance = 1e-3           # relative difference of orders N-2 and N that ends the validity range
     points = 40                # grid size when neither list is given (a grid up to the validity limit)
+    manifolds = [[0, 4]]       # optional: masters on manifolds of several modes, or "auto" (stepnf.keys.manifolds)
+    resonance = 0.05           # optional, with manifolds: the tolerance on their small denominators
+    ratios = [[1, 4]]          # optional, with explicit manifolds: the resonance vector of each ([] : found)
 
 Declared as a :class:`stepnf.keys.schema.Schema`, so a misspelt key, a wrong type or a value out of
 range is a :class:`~stepnf.errors.SceneError` naming the key when the scene is read (exit 2).
@@ -21,6 +24,7 @@ from typing import Any
 
 from stepnf.keys.checks import check_number, describe_value
 from stepnf.errors import SceneError
+from stepnf.keys.manifolds import check_manifolds, check_ratios, check_resonance, check_scene_manifolds
 from stepnf.keys.schema import Key, Schema
 
 #: Orders: 3 (DNF's T) up to 25; the force evaluations grow like N^3.5 (``stepnf.dpim.nonlinear_terms.planned_evaluations``:
@@ -50,6 +54,9 @@ class BackboneSpec:
     w_over_h: tuple[float, ...] | None = None
     tolerance: float = 1e-3
     points: int = 40
+    manifolds: str | tuple[tuple[int | str, ...], ...] | None = None
+    resonance: float | None = None
+    ratios: tuple[tuple[int, ...] | None, ...] | None = None
 
 
 def _odd(file: Any, key: str, value: Any) -> int:
@@ -85,6 +92,12 @@ BACKBONE_KEYS = Schema(
         default=1e-3, lo=TOLERANCE_RANGE[0], hi=TOLERANCE_RANGE[1],
         why=" (a relative difference; below 1e-10 two orders differ by round-off)"),
     Key("points", "integer", "grid size without a list", default=40, lo=POINTS_RANGE[0], hi=POINTS_RANGE[1]),
+    Key("manifolds", "custom", "sets of modes whose masters get the backbone of their manifold, or \"auto\"",
+        check_value=check_manifolds, what="\"auto\" or a list of sets of 2..4 modes"),
+    Key("resonance", "custom", "tolerance on the manifolds' small denominators (relative; default the DPIM's 0.05)",
+        check_value=check_resonance, what="a number in [1e-9, 0.5]"),
+    Key("ratios", "custom", "per explicit manifold, the resonance vector k ([] : found from the frequencies)",
+        check_value=check_ratios, what="a list of lists of positive integers"),
     doc="the DPIM backbone of every master mode",
 )
 
@@ -99,4 +112,5 @@ def parse_backbone(file: str | Path | None, table: Any) -> BackboneSpec:
     if listed and isinstance(table, dict) and "points" in table:
         raise SceneError(file, f"{where}.points", f"points sizes the grid drawn without a list; with {listed} the "
                          f"backbone is reported at those values: remove one of the two")
+    check_scene_manifolds(file, where, got)
     return BackboneSpec(**got)

@@ -40,7 +40,7 @@ cancel the same way; :func:`qm_roundoff` bounds them alike. ``dT_lambda`` does n
 kept apart (``extra["roundoff_dT_lambda"]``) so the raise of the amplitude is decided without it.
 
 Where STEP's own changes grow as the amplitude shrinks and exceed this per-entry model's bound (a third
-amplitude shows a rate below :data:`stepnf.step.truncation.NOISE_RATE`), the model is shown short by that
+amplitude shows a negative rate: :func:`stepnf.step.truncation.rounding_excess`), the model is shown short by that
 factor (``MasterStep.rounding_excess``: 3e4 on the paper's plate at 1e-6 h, whose solid forces round at eps
 of the unit Green-Lagrange strain, not of the strain): the forces' part of the bound is multiplied by it
 (:class:`Rounding` ``excess``; ``extra["roundoff_excess"]``).

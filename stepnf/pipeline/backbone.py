@@ -47,6 +47,8 @@ from stepnf.step.procedure import ForceEvaluator, step_amplitude
 from stepnf.plugin.dofs import rotation_mask, translation_mask
 from stepnf.pipeline.backbone_slots import ParitySlots
 from stepnf.pipeline.context import full_order_context
+from stepnf.pipeline.manifolds import (ManifoldPlan, chunked, manifold_text, master_output, parametrise, plan_name,
+                                       resolve_manifolds)
 from stepnf.pipeline.outputs import BackboneOutput, Backbones, Evaluations, RunContext, RunModel, RunModes, StepTerms
 from stepnf.pipeline.state import StageView
 
@@ -193,11 +195,18 @@ def backbone_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: Ste
     probe = step_amplitude(np.ones(1), state.policy, length)  # STEP's target length (peak 1)
     per_mode = sum(planned_evaluations(spec.order))
     records = {rec.index: rec for rec in evals.modes}
+    plans = resolve_manifolds(state, spec)  # [analysis.backbone] manifolds: checked before any solve
+    member = {q: plan for plan in plans for q in plan.modes}
+    made: dict[tuple[int, ...], tuple] = {}
+    more = f", {len(plans)} manifold(s) of several modes" if plans else ""  # (their count: in the counts)
     with state.progress.stage("backbone", f"DPIM backbone to order {spec.order}: up to {per_mode} force "
-                                          f"evaluations per master mode"):
+                                          f"evaluations per master mode{more}"):
         odd = second_slot(state) if KEEP_FACTORISATIONS_UP_TO < state.n <= TWO_SLOTS_UP_TO else None
         try:
             for p in state.masters:
+                if p in member:  # the backbone of its manifold of several modes (stepnf.pipeline.manifolds)
+                    out[p] = manifold_backbone(state, member[p], made, p, forces, probe, wmax, records.get(p))
+                    continue
                 try:
                     res = master_dpim(state, p, spec.order, forces, probe, odd)
                 except NoSingleModeManifold as exc:  # the T table and the block say so; the run goes on
@@ -218,6 +227,33 @@ def backbone_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: Ste
             if odd is not None:
                 odd.close()
     return Backbones(out)
+
+
+def manifold_backbone(state: StageView, plan: ManifoldPlan, made: dict, p: int, forces: ForceEvaluator, probe: float,
+                      wmax: WMax | None, record) -> BackboneOutput:
+    """Master ``p``'s backbone on the manifold of ``plan``, parametrised once for all its masters (``made``:
+    modes -> (manifold or the failure, the master its arrays are stored with)); a failure as
+    :func:`failed_backbone` for every master of that manifold."""
+    spec = state.scene.backbone
+    if plan.modes not in made:
+        try:
+            man = parametrise(state, plan, spec, PlannedForces(chunked(forces, state.n), plan_name(plan)), probe)
+            state.progress.message(manifold_text(plan, man))
+        except BACKBONE_FAILURES as exc:
+            man = exc
+        made[plan.modes] = (man, p)
+    man, stored_with = made[plan.modes]
+    try:
+        if isinstance(man, BaseException):
+            raise man
+        fallback = step_amplitude(state.phi[:, p], state.policy, state.model.length, translation_mask(state.dirs),
+                                  rotation_mask(state.dirs))
+        bo = master_output(state, man, plan, p, spec, wmax, probe, fallback, stored_with)
+    except BACKBONE_FAILURES as exc:
+        state.progress.message(f"backbone of master mode {p} on the manifold of modes {list(plan.modes)} failed: {exc}")
+        return failed_backbone(spec, probe, exc)
+    block = no_manifold(force_accuracy(bo.block, record, state.policy.tolerance), record)
+    return BackboneOutput(None, block, (), bo.arrays)
 
 
 def force_accuracy(block: dict, record, tolerance: float) -> dict:

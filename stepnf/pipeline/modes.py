@@ -33,8 +33,12 @@ class ModeLabels:
 
 
 def modes_needed(state: StageView) -> int:
-    """Elastic modes to compute at least: two above the highest integer master, ``n_ret`` for modal sums."""
+    """Elastic modes to compute at least: two above the highest integer master (or mode of an explicit
+    ``[analysis.backbone] manifolds``), ``n_ret`` for modal sums."""
     int_masters = [m for m in state.scene.master_modes if isinstance(m, int)]
+    spec = getattr(state.scene, "backbone", None)
+    if spec is not None and isinstance(spec.manifolds, tuple):
+        int_masters += [m for group in spec.manifolds for m in group if isinstance(m, int)]
     need = max(int_masters, default=0) + 2
     return max(need, state.n_ret) if state.needs_modal else need
 

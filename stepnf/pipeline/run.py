@@ -79,7 +79,7 @@ def output_names(name: str) -> list[str]:
     from stepnf.io.fields import FIELD_SUFFIXES
 
     return [f"{name}.h5", f".{name}.partial", *(f"{name}_fields{s}" for s in FIELD_SUFFIXES),
-            f"{name}_modes.png", f"{name}_backbone.png"]
+            f"{name}_modes.png", f"{name}_backbone.png", f"{name}_branches.png"]
 
 
 def _compute(scene: Scene, progress: Progress, writing: bool, started: float) -> RunResult:

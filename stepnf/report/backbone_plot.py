@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -41,20 +42,25 @@ def _linear(x, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     return np.where(x < xs[0], ys[0] + lo * (x - xs[0]), np.where(x > xs[-1], ys[-1] + hi * (x - xs[-1]), y))
 
 
+def panels(k: int) -> tuple[Any, list]:
+    """A figure of ``k`` panels, three to a row (4.6 x 3.8 in each), the unused ones hidden: ``(fig, axes[:k])``."""
+    plt = pyplot()
+    ncol = min(3, k)
+    nrow = math.ceil(k / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.6 * ncol, 3.8 * nrow), squeeze=False)
+    for ax in axes.ravel()[k:]:
+        ax.set_visible(False)
+    return fig, list(axes.ravel()[:k])
+
+
 def plot_backbones(result: RunResult, path: str | Path) -> Path | None:
     """PNG of every master mode's backbone (module docstring); ``None`` when the run computed none."""
     masters = [m for m in result.modes if m.backbone and m.index in result.backbones]
     if not masters:
         return None
-    plt = pyplot()
-    k = len(masters)
-    ncol = min(3, k)
-    nrow = math.ceil(k / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.6 * ncol, 3.8 * nrow), squeeze=False)
-    for ax, mode in zip(axes.ravel(), masters):
+    fig, axes = panels(len(masters))
+    for ax, mode in zip(axes, masters):
         draw_backbone(ax, mode, result.backbones[mode.index])
-    for ax in axes.ravel()[k:]:
-        ax.set_visible(False)
     fig.suptitle("DPIM backbones (orders 3 .. N; dashed beyond the validity limit)")
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)

@@ -37,6 +37,7 @@ def backbone_lines(res: RunResult) -> list[str]:
         if not b:
             continue
         out.append(f"backbone [{m.index} {label_text(m.label)}] order {b['order']}, {limit_text(b)}:")
+        out += manifold_lines(b, m.index)
         wh = b.get("w_max_over_h")
         if b["amplitude"]:  # (a DPIM that refused the master has none)
             out.append(("  " + "  ".join(["A".ljust(11), "w_NL/w".ljust(10)] + (["W_max/h"] if wh else []))).rstrip())
@@ -55,6 +56,25 @@ def backbone_lines(res: RunResult) -> list[str]:
     return out
 
 
+def manifold_lines(b: dict[str, Any], p: int) -> list[str]:
+    """A master on a manifold of several modes (:mod:`stepnf.dpim.manifold_report`): which manifold and why, and
+    one line per coupled branch of master ``p`` (its amplitude range, how much of it is stable); none for a
+    single-mode block."""
+    man = b.get("manifold")
+    if not man:
+        return []
+    k = ":".join(map(str, man["ratios"])) if man.get("ratios") else "none"
+    out = [f"  on the manifold of modes {man['modes']} ({man.get('chosen')}: {man.get('why')}): ratios {k}, "
+           f"{man.get('resonant_monomials')} resonant monomials kept"]
+    for c in b.get("coupled_branches", []):
+        j = c["masters"].index(p) if p in c["masters"] else 0
+        amps = [a for a in c["A"][j] if a is not None]
+        stable = sum(c["stable"]) / max(len(c["stable"]), 1)
+        out.append(f"  coupled branch: Omega {c['Omega'][0]:.6g} .. {c['Omega'][-1]:.6g}, A of mode {c['masters'][j]} "
+                   f"{min(amps):.4g} .. {max(amps):.4g}, {100 * stable:.0f}% of its points stable")
+    return out
+
+
 def limit_text(b: dict[str, Any]) -> str:
     """What the block says of its validity limit (``valid_up_to``, ``valid_reason``)."""
     v, orders = b.get("valid_up_to"), f"orders {b['order'] - 2} and {b['order']}"
@@ -62,6 +82,8 @@ def limit_text(b: dict[str, Any]) -> str:
         return "FAILED, not computed (flag below; the command exits 3)"
     if b.get("valid_reason") == "forces inaccurate":
         return "no validity range: the forces at the probe amplitude are not accurate (flag below)"
+    if b.get("valid_reason") == "no continuing branch":  # a master on a manifold, at an exact resonance
+        return "no branch of its manifold continues the linear mode (exact resonance): its coupled branches follow"
     if b.get("valid_reason") in NO_VALIDITY_REASONS:
         return f"no validity range: {b['valid_reason']} (flag below)"
     if v is None:

@@ -112,9 +112,9 @@ class MasterStep:
     amplitudes: tuple[float, ...] = ()
     rate_G: float | None = None
     rate_h: float | None = None
-    #: how many times the changes that grew as the amplitude shrank (rounding, rate below
-    #: :data:`stepnf.step.truncation.NOISE_RATE`) exceeded their rounding bound: rounding the per-entry model
-    #: of :mod:`stepnf.nf.roundoff` did not foresee, by which T's rounding bound is scaled (1: none shown)
+    #: how many times the changes that grew as the amplitude shrank (rounding: a negative rate,
+    #: :func:`stepnf.step.truncation.rounding_excess`) exceeded their rounding bound: rounding the per-entry
+    #: model of :mod:`stepnf.nf.roundoff` did not foresee, by which T's rounding bound is scaled (1: none shown)
     rounding_excess: float = 1.0
 
 

@@ -244,17 +244,20 @@ def test_near_one_to_four_manifold_to_order_15():
 
 def test_declared_ratios_keep_every_resonant_monomial():
     """near_one_to_four at order 9: with ratios (1, 4) declared, every monomial resonant for them is kept (96
-    coefficients), a superset of the tolerance's choice (94: ``zbar0^7 z4^2`` in equation 0 and its conjugate,
-    detuned by 9.2% > 5%, are parametrised instead); ratios that the frequencies do not match are refused; the
-    HDF5 arrays
-    hold every coefficient."""
+    coefficients); the same ratios found from the frequencies (1:4 within the 5% tolerance, integers up to
+    MAX_RATIO) decide the same way, to the bit (before the review of issue 33 the tolerance decided each small
+    denominator: 94, ``zbar0^7 z4^2`` detuned by 9.2% dropped while the masters were called 1:4). With a 1%
+    tolerance no ratio is found (3.954 is 1.15% off 4): each denominator decides, fewer are kept and the ratios are
+    None. Ratios that the frequencies do not match are refused; the HDF5 arrays hold every coefficient."""
     M, K, G, H = near_one_to_four()
     f = batch_force(K, G, H)
     w, V = modes(K, M)
     args = (DPIM(f, K, M), [0, 4], V[:, [0, 4]], w[[0, 4]], 9)
-    by_tolerance = parametrise_manifold(*args, probe=1.0)
+    found = parametrise_manifold(*args, probe=1.0)
     declared = parametrise_manifold(*args, probe=1.0, ratios=[1, 4])
-    assert set(by_tolerance.f) < set(declared.f) and len(declared.f) == 96 and len(by_tolerance.f) == 94
+    assert len(declared.f) == 96 and found.f == declared.f and list(found.ratios) == [1, 4]
+    strict = parametrise_manifold(*args, probe=1.0, resonance=0.01)
+    assert strict.ratios is None and set(strict.f) < set(declared.f)
     for (i, al) in declared.f:
         assert (al[0] - al[2]) + 4 * (al[1] - al[3]) == (1 if i < 2 else -1) * (1, 4)[i % 2]
     with pytest.raises(ValueError, match=r"ratios \[1, 3\] do not match"):

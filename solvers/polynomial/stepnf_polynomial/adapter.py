@@ -127,6 +127,13 @@ def assemble_system(data: Mapping[str, Any], path: Path, base: int = 0) -> dict[
         if n <= 0:
             raise SystemFileError(f"{path}: array 'n' must be one positive integer (the number of dofs), "
                                   f"got {a.ravel()[:3]}")
+        # every dof has a mass or a stiffness: fewer entries than dofs is a wrong n (and n-sized arrays
+        # built from it would not be bounded by the file's size: n = 1e9 was an out-of-memory kill)
+        Kx = data.get("K_vals", data.get("K", ()))
+        k = np.asarray(data["M_vals"]).size + (Kx.nnz if sp.issparse(Kx) else np.asarray(Kx).size)
+        if n > k:
+            raise SystemFileError(f"{path}: array 'n' says {n} dofs but M and K hold {k} entries in all; "
+                                  "every dof needs a mass or a stiffness (n is the size of M)")
     if n <= 0:
         raise SystemFileError(f"{path}: array 'M' has shape {data['M'].shape}, expected a non-empty square matrix")
     out: dict[str, Any] = {k: _matrix_of(data, k, n, path, base) for k in ("M", "K")}

@@ -38,8 +38,8 @@ def coo_lists(subs, vals, n: int, order: int, *, name: str, source: str, base: i
     sk, vk = f"{name}_subs", f"{name}_vals"
     s = np.asarray(subs)
     v = np.asarray(vals)
-    if s.ndim == 2 and s.shape[0] == 0 and s.shape[1] in (0, order):  # MATLAB's empty sptensor: zeros(0, d)
-        s = s.reshape(0, order)
+    if s.size == 0 and v.size == 0:  # an empty tensor (MATLAB's empty sptensor: zeros(0, d)), in whatever
+        s, v = s.reshape(0, order), v.reshape(0)  # empty shape it was stored (v7.3: (d, 0) or (0, d))
     if s.ndim != 2 or s.shape[1] != order:
         raise ArrayError(f"{source}: array {sk!r} has shape {s.shape}, expected (k, {order}): one row of "
                          f"{order} subscripts per entry of {name}")
@@ -59,6 +59,11 @@ def coo_lists(subs, vals, n: int, order: int, *, name: str, source: str, base: i
         if off.any():
             r = int(np.flatnonzero(off.any(axis=1))[0])
             raise ArrayError(f"{source}: array {sk!r} holds a non-integer subscript {s[r].tolist()} (row {r + base})")
+        huge = np.abs(s) >= 2.0 ** 62  # beyond int64: range-checked as floats, no cast warning
+        if huge.any():
+            r = int(np.flatnonzero(huge.any(axis=1))[0])
+            raise ArrayError(f"{source}: array {sk!r} row {r + base} holds subscripts {s[r].tolist()} outside "
+                             f"{base}..{n - 1 + base} ({'1' if base else '0'}-based, n = {n} dofs, the size of M)")
     s = s.astype(np.int64) - int(base)
     out = (s < 0) | (s >= n)
     if out.any():

@@ -9,7 +9,9 @@ frequency at a given amplitude on a branch (Brent's method along the chord betwe
 trial point corrected onto the branch: to round-off). Validity (:func:`validity`), as
 :mod:`stepnf.dpim.backbone`'s: the same branch of the manifold truncated at order N - 2, traced from the
 same start, and the largest ``A`` below which ``|k_j Omega_N(A) - k_j Omega_{N-2}(A)| <= tol omega_j``
-(``Omega_{N-2}`` at the same A by cubic interpolation of its points).
+(``Omega_{N-2}`` at the same A by cubic interpolation of its points), and where the terms of orders N - 1 and N
+stay within ``sqrt(tol)`` of the whole field (M-norm, largest over the period, at the same point: the single-mode
+shape test, :meth:`stepnf.dpim.backbone.Backbone.validity_limit`).
 """
 from __future__ import annotations
 
@@ -72,6 +74,8 @@ def backbone_branches(manifold: Any, mode: int, A_stop: float, *, ratios: Any = 
                              f"{list(manifold.masters)} starts at |zeta_{mode}| = {r:.3g}")
     out = []
     for kind, u0 in found:
+        if kind.startswith("continues mode"):  # named by its index in the spectrum, not its position
+            kind = f"continues mode {manifold.masters[mode]}"
         b = trace(system, measure, u0, kind, mode, manifold.masters, A_stop, max_points=max_points,
                   transverse=transverse, h=h)
         if tol is not None:
@@ -121,7 +125,7 @@ def point_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> 
 def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
              max_points: int = 400) -> tuple[float | None, str]:
     """``(A_max, reason)`` for ``branch`` of ``manifold`` at order N against order N - 2 (module docstring):
-    ``"orders differ"``, ``"amplitude folds"`` (A of the master stops growing first), ``"not reached"``
+    ``"orders differ"``, ``"shapes differ"``, ``"amplitude folds"`` (A of the master stops growing first), ``"not reached"``
     (A_max None) or ``"no lower order"`` (N < 5: A_max None)."""
     N = int(manifold.order)
     if N < 5:
@@ -145,25 +149,33 @@ def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
     spline = CubicSpline(AL[:grow], low.Omega[:grow])
     w = float(np.asarray(manifold.omega)[j])
     k = float(branch.ratios[j])
+    shapes, shape_tol = OrbitMeasure(manifold, system.k), float(np.sqrt(tol))
     prev_A = 0.0
     prev_d = -1.0
     A = branch.A[:, j]
+
+    def excesses(u: np.ndarray, Om_low: float) -> tuple[float, float]:  # > 0: the frequencies, the shapes differ
+        return (abs(k * (u[2 * m] - Om_low)) / (tol * w) - 1.0,
+                shapes.shape_difference(u[:m] + 1j * u[m:2 * m], N - 2) / shape_tol - 1.0)
     for i in range(len(A)):
         if i and A[i] <= A[i - 1]:
             return float(prev_A), "amplitude folds"
-        if A[i] > AL[grow - 1]:
-            return (float(prev_A), "orders differ") if grow < len(AL) else (None, "not reached")
-        d = abs(k * (branch.Omega[i] - float(spline(A[i])))) / (tol * w) - 1.0
+        if A[i] > AL[grow - 1]:  # order N - 2 folds or ends (its trace stopped) below: nothing to compare with
+            return float(prev_A), "orders differ"
+        df, ds = excesses(_u(branch, i), float(spline(A[i])))
+        d = max(df, ds)
         if d > 0:
             if i == 0:
-                return 0.0, "orders differ"
+                return 0.0, "orders differ" if df >= ds else "shapes differ"
 
-            def excess(a: float) -> float:  # both frequencies refined on their branches
-                return abs(k * (omega_at(manifold, branch, a) - omega_at(lower, low, a))) / (tol * w) - 1.0
+            def excess(a: float) -> float:  # both frequencies refined on their branches, the shapes at a
+                return max(excesses(point_at(manifold, branch, a), omega_at(lower, low, a)))
             try:
-                return float(brentq(excess, prev_A, float(A[i]), xtol=1e-12 * float(A[i]))), "orders differ"
+                a = float(brentq(excess, prev_A, float(A[i]), xtol=1e-12 * float(A[i])))
+                df, ds = excesses(point_at(manifold, branch, a), omega_at(lower, low, a))
             except (ValueError, NumericalError):  # no sign change once refined: the interpolated crossing
-                return float(prev_A + (A[i] - prev_A) * (-prev_d) / (d - prev_d)), "orders differ"
+                a = float(prev_A + (A[i] - prev_A) * (-prev_d) / (d - prev_d))
+            return a, "orders differ" if df >= ds else "shapes differ"
         prev_A, prev_d = float(A[i]), d
     return None, "not reached"
 

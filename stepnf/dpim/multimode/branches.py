@@ -27,16 +27,17 @@ points marks a branch point (:attr:`Branch.branch_points`).
 Stability: the eigenvalues of the real ``2m x 2m`` Jacobian of the rotating-frame field
 ``(Re G, Im G)`` with respect to ``(Re zeta, Im zeta)`` (eps = 0). The flow is conservative, so
 eigenvalues come in pairs ``+-lambda`` and the rotation gives a double zero (a Jordan block of the phase and
-the amplitude): a point is stable when every real part is at most :data:`STABILITY_TOL` ``max(omega)``
-(module constant: it says why).
+the amplitude): a point is stable when every real part is within the round-off of that double zero
+(:data:`STABILITY_TOL`, :data:`STABILITY_FLOOR`: the constants say why).
 
 The starts (:func:`starts`): at a small amplitude ``r`` of ``zeta_j``, Newton at fixed ``Re zeta_j = r``
 from guesses: the linear mode with the others forced at their lowest order (``zeta_l =
 f zeta^alpha / (i (k_l Omega - w_l))``), the closed-form coupled solutions of an exact or near 1:2 pair
 (quadratic coupling: ``delta (2 delta + mu) = - f_a f_b r^2``, ``delta = k_j Omega - w_j``,
-``mu = 2 w_j - w_l``) and, for a 1:1 pair, ``zeta_l = +-zeta_j, i zeta_j`` (in-phase, out-of-phase,
-elliptic). Amplitude measures: :mod:`stepnf.dpim.multimode.measures`; tracing a master's branches, validity and
-the table: :mod:`stepnf.dpim.multimode.backbone`.
+``mu = 2 w_j - w_l``), at any other exact resonance (1:3, 1:4, ...) the linear mode's guess at Omega detuned by
+mode j's own cubic shift and a grid of ``zeta_l`` (magnitudes and phases) and, for a 1:1 pair, ``zeta_l = +-zeta_j,
+i zeta_j`` (in-phase, out-of-phase, elliptic). Amplitude measures: :mod:`stepnf.dpim.multimode.measures`;
+tracing a master's branches, validity and the table: :mod:`stepnf.dpim.multimode.backbone`.
 """
 from __future__ import annotations
 
@@ -47,12 +48,17 @@ import numpy as np
 
 from stepnf.errors import NumericalError
 
-#: Stable when every eigenvalue's real part is at most this times ``max(omega)``: the double zero of the
-#: rotation (a Jordan block) splits in floating point by ~ sqrt(eps) |J| = 1.5e-8 |J|, and the truncated
-#: reduced dynamics conserves its first integral only to truncation (the unfolding |eps| of the branch: at most
-#: 7e-15 w on the branches of tests/dpim/test_branches.py); an instability slower than 1e-6 w e-folds over
-#: 1.6e5 periods. Measured growth rates of unstable orbits there: 0.026 to 0.067 w (1:1 in-phase).
-STABILITY_TOL = 1e-6
+#: Stable when every eigenvalue's real part is at most ``STABILITY_TOL sqrt(eps w |J|_1) + STABILITY_FLOOR eps w``
+#: (w = max(omega)): the double zero of the rotation (a Jordan block of size ~|J|) splits in floating point by
+#: ~ sqrt(delta |J|), delta ~ eps w the rounding of the rotating frame's entries (detunings w_j - k_j Omega are
+#: differences of numbers of size w). Over every point of tests/dpim/test_branches.py the stable points' largest
+#: real part came to at most 1.41 sqrt(eps w |J|_1) and the unstable ones' to 1e5 or more of it. |J| (detuning plus
+#: nonlinear terms, ~ A^2) shrinks with the amplitude like the growth rates do: a fixed 1e-6 w (before the review
+#: of issue 33) called the 1:1 in-phase branch stable below A ~ 0.002 (growth 7.7e-8 w at A = 5e-4). The floor:
+#: the reduced dynamics' coefficients carry round-off (~1e-14 w: the unfolding |eps| of those branches is at most
+#: 7e-15 w). Measured growth rates of unstable orbits there: 0.026 to 0.067 w (1:1 in-phase, A ~ 0.3-0.5).
+STABILITY_TOL = 16.0
+STABILITY_FLOOR = 256.0
 #: A starting point is new when its (Omega, zeta) differ from the others' by more than this (relative).
 DISTINCT = 1e-6
 
@@ -64,10 +70,10 @@ class Branch:
     ``Omega`` (K,) rad per model time unit (the fundamental; mode j moves at ``k_j Omega``), ``zeta`` (K, m)
     complex (phase: ``zeta[:, mode]`` real >= 0, :func:`normalise_phase`), ``A`` (K, m) amplitudes of
     the masters' modal coordinates (:mod:`stepnf.dpim.multimode.measures`), ``stable`` (K,), ``eps`` (K,) the
-    unfolding parameter (module docstring), ``kind`` ``"continues mode j"`` or ``"coupled"``, ``masters``
-    (m,) indices in the spectrum, ``ratios`` (m,) the resonance vector ``k``, ``branch_points`` indices i
-    with a branch point between points i and i + 1, ``W_max`` (K,) when asked, ``valid_A`` the validity
-    limit (amplitude of master ``mode``) and ``valid_reason``.
+    unfolding parameter (module docstring), ``kind`` ``"continues mode s"`` (``s = masters[mode]``, its index
+    in the spectrum) or ``"coupled"``, ``masters`` (m,) indices in the spectrum, ``ratios`` (m,) the resonance
+    vector ``k``, ``branch_points`` indices i with a branch point between points i and i + 1, ``W_max`` (K,)
+    when asked, ``valid_A`` the validity limit (amplitude of master ``mode``) and ``valid_reason``.
     """
 
     Omega: np.ndarray
@@ -180,7 +186,10 @@ class ReducedSystem:
         m = self.m
         J = self.jacobian(np.concatenate([u[:2 * m + 1], [0.0]]))[:, :2 * m]
         top = float(np.max(np.linalg.eigvals(J).real))
-        return top <= STABILITY_TOL * float(self.omega.max()), top
+        eps = float(np.finfo(float).eps)
+        w = float(self.omega.max())
+        bound = STABILITY_TOL * np.sqrt(eps * w * float(np.abs(J).sum(axis=0).max())) + STABILITY_FLOOR * eps * w
+        return top <= bound, top
 
     def correct(self, u: np.ndarray, extra: Callable[[np.ndarray], tuple[float, np.ndarray]], ref: np.ndarray,
                 maxiter: int = 12) -> tuple[np.ndarray, int] | None:
@@ -276,6 +285,9 @@ def start_guesses(system: ReducedSystem, j: int, r: float) -> list[tuple[str, np
     base = np.zeros(m, dtype=complex)
     base[j] = r
     coupled = []
+    # mode j's own cubic frequency shift: at an exact k_l Om0 = w_l the guess below needs Omega off Om0
+    cubic = (system.eq == j) & np.all(system.E == _unit(2 * m, [j, j, j + m]), axis=1)
+    Om_base = Om0
     for l in range(m):
         if l == j or not own[l].any():
             continue
@@ -284,24 +296,28 @@ def start_guesses(system: ReducedSystem, j: int, r: float) -> list[tuple[str, np
         i0 = idx[deg == deg.min()]
         forcing = complex(np.sum(system.c[i0])) * r ** int(deg.min())
         sigma = k[l] * Om0 - w[l]
+        back = (system.eq == j) & np.all(system.E == _unit(2 * m, [j + m, l]), axis=1)
+        closed = int(deg.min()) == 2 and 2 * k[j] == k[l] and back.any()
+        if abs(sigma) <= 1e-8 * w[l] and k[l] != k[j] and not closed:  # exact 1:3, 1:4, ...: shifted, grid
+            Om_base = (w[j] + float(np.sum(system.c[cubic]).imag) * r * r) / k[j]
+            sigma = k[l] * Om_base - w[l]
+            coupled += _grid_guesses(m, j, l, r, Om_base)
         if abs(sigma) > 1e-8 * w[l]:
             base[l] = forcing / (1j * sigma)
-        if int(deg.min()) == 2 and 2 * k[j] == k[l]:  # a 1:2 pair: the closed-form coupled solutions
-            back = (system.eq == j) & np.all(system.E == _unit(2 * m, [j + m, l]), axis=1)
-            if back.any():
-                fa, fb = complex(system.c[back][0]), complex(system.c[i0][0])
-                mu = k[l] * Om0 - w[l]  # = 2 w_j - w_l for k = (1, 2)
-                disc = np.sqrt(complex(mu * mu - 8 * fa * fb * r * r))
-                for sgn in (1, -1):
-                    delta = (-mu + sgn * disc) / 4
-                    if abs(delta.imag) > 1e-9 * abs(w[j]):  # no real root: no coupled branch here
-                        continue
-                    zeta = np.zeros(m, dtype=complex)
-                    zeta[j] = r
-                    sig = k[l] * (w[j] + delta.real) / k[j] - w[l]
-                    zeta[l] = fb * r * r / (1j * sig) if sig != 0 else 0
-                    coupled.append(("coupled", u_of(zeta, (w[j] + delta.real) / k[j])))
-    out.append((f"continues mode {j}", u_of(base, Om0)))
+        if closed:  # a 1:2 pair: the closed-form coupled solutions
+            fa, fb = complex(system.c[back][0]), complex(system.c[i0][0])
+            mu = k[l] * Om0 - w[l]  # = 2 w_j - w_l for k = (1, 2)
+            disc = np.sqrt(complex(mu * mu - 8 * fa * fb * r * r))
+            for sgn in (1, -1):
+                delta = (-mu + sgn * disc) / 4
+                if abs(delta.imag) > 1e-9 * abs(w[j]):  # no real root: no coupled branch here
+                    continue
+                zeta = np.zeros(m, dtype=complex)
+                zeta[j] = r
+                sig = k[l] * (w[j] + delta.real) / k[j] - w[l]
+                zeta[l] = fb * r * r / (1j * sig) if sig != 0 else 0
+                coupled.append(("coupled", u_of(zeta, (w[j] + delta.real) / k[j])))
+    out.append((f"continues mode {j}", u_of(base, Om_base)))
     out += coupled
     for l in range(m):  # 1:1 pairs: in-phase, out-of-phase, elliptic
         if l != j and k[l] == k[j]:
@@ -309,6 +325,19 @@ def start_guesses(system: ReducedSystem, j: int, r: float) -> list[tuple[str, np
                 zeta = base.copy()
                 zeta[l] = ph * r
                 out.append(("coupled", u_of(zeta, Om0)))
+    return out
+
+
+def _grid_guesses(m: int, j: int, l: int, r: float, Om: float) -> list[tuple[str, np.ndarray]]:
+    """Coupled guesses of an exact resonance with no closed form (1:3, 1:4, ...): ``zeta_l = s e^{i psi}``,
+    ``s`` from ``r / 100`` to ``10 r`` (7 values), ``psi`` every ``pi / 4``; :func:`starts` keeps the distinct
+    solutions Newton reaches."""
+    out = []
+    for s in r * np.logspace(-2.0, 1.0, 7):
+        for psi in np.arange(8) * np.pi / 4:
+            zeta = np.zeros(m, dtype=complex)
+            zeta[j], zeta[l] = r, s * np.exp(1j * psi)
+            out.append(("coupled", np.concatenate([zeta.real, zeta.imag, [Om, 0.0]])))
     return out
 
 

@@ -45,6 +45,10 @@ from stepnf.errors import NumericalError
 from stepnf.flags import new_flag
 from stepnf.runtime.counters import Counters
 
+#: The largest integer of a resonance vector found from the frequencies (1:1, 1:2, 1:3, 1:4 and their combinations,
+#: issue 33): such a resonance decides by its ratios which monomials are resonant; a higher-order one (2:7) is left
+#: to the tolerance on each small denominator.
+MAX_RATIO = 4
 #: ``|sigma - lam_i| <= EXACT_RESONANCE |lam_i|``: an exact resonance (kept in the reduced dynamics whatever the
 #: tolerance or ratios say: the shift is singular there), the relative round-off of a sum of frequencies.
 EXACT_RESONANCE = 1e-9
@@ -208,8 +212,9 @@ def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.nda
 
     ``masters``: their indices in the spectrum (messages, flags; None: the computed modes nearest ``omegas``);
     ``probe``: the polarisation probe (model length units, :mod:`stepnf.dpim.polarisation`); ``ratios``: the
-    resonance vector k (m,) that decides the resonant monomials (None: the tolerance decides, and k is found from
-    the frequencies); ``resonance``: that tolerance (None: ``dpim.tolerances.resonance``); ``progress(p)`` after
+    resonance vector k (m,) that decides the resonant monomials (None: a resonance of integers up to
+    :data:`MAX_RATIO` the frequencies show within ``resonance`` decides the same way; without one the tolerance
+    decides each small denominator, and k is found afterwards from the kept monomials if they fit one); ``resonance``: that tolerance (None: ``dpim.tolerances.resonance``); ``progress(p)`` after
     each order.
     """
     order = int(order)
@@ -240,11 +245,14 @@ def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.nda
         if np.any(k_given < 1) or np.any(np.abs(r - k_given) > tol * k_given):
             raise ValueError(f"DPIM manifold of modes {masters}: ratios {k_given.tolist()} do not match the "
                              f"frequencies {omega.tolist()} within the resonance tolerance {tol:g}")
+    elif m > 1:  # a low-order resonance the frequencies show decides by ratios too, every monomial it makes resonant
+        k_low = find_ratios(omega, tol, MAX_RATIO)  # kept (masters 3% apart: z0^2 conj(z1), 6% off, is 1:1's)
+        k_given = k_low if k_low is not None and int(k_low.max()) <= MAX_RATIO else None
     counters = dpim.counters if dpim.counters is not None else Counters()
     sampling = MonomialSampling(m, order)
     forcing = SampledForcing(dpim.forces, K, probe, sampling, dpim.rotations)
     solves = ManifoldSolves(K, M, Phi, masters, omega, dpim.solves, counters, R=dpim.spectrum.rigid,
-                            spectrum=spectrum)
+                            spectrum=spectrum, rigid_window=(tol * float(omega.min())) ** 2)
     try:
         W, V, f, flags, counts = recursion(forcing, solves, counters, M, Phi, omega, masters, order, tol, k_given,
                                            spectrum, progress)

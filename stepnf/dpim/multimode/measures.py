@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any, Callable, Sequence
 
 import numpy as np
+import scipy.sparse as sp
 
 Transverse = Callable[[np.ndarray], np.ndarray] | Sequence[int] | np.ndarray
 
@@ -39,6 +40,26 @@ class OrbitMeasure:
         ns = np.arange(self.nmax + 1)
         self._cos, self._sin = np.cos(np.outer(ns, self.theta)), np.sin(np.outer(ns, self.theta))
         self._transverse: tuple | None = None
+        self.M, self.order_of = manifold.M, self.E.sum(axis=1)
+        self._E: np.ndarray | None = None  # e^{i n theta} (2 nmax + 1, grid) of shape_difference
+
+    def shape_difference(self, zeta: np.ndarray, cut: int) -> float:
+        """``max_theta |x_high|_M / max_theta |x|_M`` on the orbit of ``zeta``: the terms of orders above ``cut``
+        against the whole field (:meth:`stepnf.dpim.backbone.Backbone.shape_difference`, there at the same rho)."""
+        if self._E is None:
+            self._E = np.exp(1j * np.outer(np.arange(-self.nmax, self.nmax + 1), self.theta))
+        mono = self._monomials(zeta)
+        whole = self._peak(mono)
+        return float(np.sqrt(max(self._peak(mono * (self.order_of > cut)), 0.0) / whole)) if whole > 0 else 0.0
+
+    def _peak(self, coef: np.ndarray) -> float:
+        """Largest ``|x(theta)|_M^2`` over the grid, ``x = sum_t coef_t W_t e^{i n_t theta}``: the harmonics' fields
+        ``C_h`` (n per harmonic), their Gram ``S = C^H M C``, then ``sum_hk conj(e_h) S_hk e_k``."""
+        T, H = len(coef), 2 * self.nmax + 1
+        B = sp.csr_matrix((coef, (np.arange(T), self.n_of + self.nmax)), shape=(T, H))
+        C = np.asarray(B.T @ self.Ws.T)  # (H, n)
+        S = C.conj() @ np.asarray(self.M @ C.T)  # (H, H)
+        return float(np.max(np.einsum("ht,ht->t", self._E.conj(), S @ self._E).real))
 
     def _monomials(self, zeta: np.ndarray) -> np.ndarray:
         z = np.concatenate([zeta, np.conj(zeta)])

@@ -43,17 +43,24 @@ class ManifoldSolves:
 
     ``Phi`` (n, m) the masters' shapes (M-normalised), ``masters`` their indices (in messages), ``omega`` (m,);
     ``spectrum`` angular frequencies of the computed modes (names the mode of a singular shift; None: unnamed);
-    ``R`` rigid modes (n, r) or None.
+    ``R`` rigid modes (n, r) or None; ``rigid_window``: a shift ``0 < s <= rigid_window`` is near the rigid modes'
+    eigenvalue 0 (monomials of a small frequency ``|d|``, e.g. ``z_0 conj(z_1)`` of near-twin masters): the system
+    is then bordered with ``M R`` as well, so that ``R^T M W = 0`` as at ``s = 0`` (the internal forces and the
+    masters' inertia terms have no rigid part; without the border ``K - s M`` is nearly singular along R and the
+    rounding of the solve, ``~ eps |K| / s``, came out as W of 1e6 at ``|d| = 1e-9``, review of issue 33).
     """
 
     def __init__(self, K, M, Phi: np.ndarray, masters: Sequence[int], omega: np.ndarray, solvers: Solvers,
-                 counters: Counters, *, R: np.ndarray | None = None, spectrum: np.ndarray | None = None):
+                 counters: Counters, *, R: np.ndarray | None = None, spectrum: np.ndarray | None = None,
+                 rigid_window: float = 0.0):
         self.K, self.M = sp.csr_matrix(K), sp.csr_matrix(M)
         self.Phi = np.asarray(Phi, dtype=float)
         self.MPhi = np.asarray(self.M @ self.Phi)
         self.masters, self.omega = tuple(masters), np.asarray(omega, dtype=float)
         self.solvers, self.counters = solvers, counters
         self.R = None if R is None or not np.asarray(R).size else np.asarray(R, dtype=float)
+        self.MR = None if self.R is None else np.asarray(self.M @ self.R)
+        self.rigid_window = float(rigid_window)
         self.spectrum = None if spectrum is None else np.asarray(spectrum, dtype=float)
         self._cache: dict[tuple[float, tuple[int, ...]], Callable[[np.ndarray], np.ndarray]] = {}
         self._factors: list[Any] = []
@@ -78,12 +85,13 @@ class ManifoldSolves:
 
     def _make(self, s: float, bordered: tuple[int, ...], where: str) -> Callable[[np.ndarray], np.ndarray]:
         label = f"K - {s:.6g} M (DPIM manifold of modes {self.masters}{', bordered' if bordered else ''})"
+        rigid = self.R is not None and 0.0 < s <= self.rigid_window
         try:
-            if bordered:
-                MD = sp.csr_matrix(self.MPhi[:, list(bordered)])
+            if bordered or rigid:
+                MD = sp.csr_matrix(np.column_stack([self.MPhi[:, list(bordered)]] + ([self.MR] if rigid else [])))
                 A = sp.bmat([[self.K - s * self.M, MD], [MD.T, None]]).tocsr()
                 fac = factorize(A, counters=self.counters, backend=self.solvers.backend, label=label)
-                n, nb = self.K.shape[0], len(bordered)
+                n, nb = self.K.shape[0], MD.shape[1]
                 solve = lambda X: fac.solve(np.vstack([X, np.zeros((nb, X.shape[1]))]))[:n]  # noqa: E731
             elif s == 0.0 and self.solvers.pinv is not None:
                 pinv = self.solvers.pinv

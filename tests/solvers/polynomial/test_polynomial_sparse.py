@@ -172,6 +172,39 @@ def test_mat_round_trip_is_one_based(tmp_path, version):
     assert ad.dof_directions().tolist() == [0, 1, 2, 2, 1, 0, 2]  # MATLAB's row of doubles
 
 
+@pytest.mark.parametrize("dims", [(0, 3), (3, 0)], ids=["matlab-order", "hdf5-order"])
+def test_v73_empty_quadratic_tensor_is_read_as_zero(tmp_path, dims):
+    """A model without a quadratic term (SSMTool's fnl{1} an empty sptensor: G.subs zeros(0, 3), G.vals
+    zeros(0, 1)): in v7.3 MATLAB writes an empty array as a uint64 dataset of its dimensions with the
+    attribute MATLAB_empty. Either order of those dimensions reads as G = 0: the forces are K u + H(u, u, u)
+    bit for bit those of the same lists with G left out (no G entry to add)."""
+    import h5py
+
+    write_v73(tmp_path / "e.mat", matlab_arrays())
+    with h5py.File(tmp_path / "e.mat", "r+") as f:
+        for key, shape in (("G_subs", dims), ("G_vals", (0, 1))):
+            del f[key]
+            f[key] = np.array(shape, dtype=np.uint64)
+            f[key].attrs["MATLAB_class"] = np.bytes_("double")
+            f[key].attrs["MATLAB_empty"] = np.uint8(1)
+    ad = PolynomialAdapter.from_config({"file": "e.mat"}, base_dir=tmp_path)
+    U = np.random.default_rng(3).standard_normal((2, N))
+    ref = PolynomialAdapter(sp.csr_matrix(M), sp.csr_matrix(K), (np.zeros((0, 3), np.int64), np.zeros(0)), HL)
+    assert ad.describe()["tensors"]["nnz_G"] == 0
+    assert np.array_equal(ad.internal_forces(U), ref.internal_forces(U))
+
+
+def test_v5_sparse_matrices_are_not_sized_as_dense(tmp_path):
+    """MATLAB's default save (v7, read by scipy) of a 12000-dof model: sparse M and K hold 12000 entries,
+    not 12000^2 doubles (1.07 GiB, above the 1 GiB limit per array, which refused them before)."""
+    n = 12000
+    scipy.io.savemat(tmp_path / "big.mat", {"M": sp.identity(n, format="csc"), "K": sp.identity(n, format="csc"),
+                                            "G_subs": np.array([[1.0, 1, 2]]), "G_vals": np.array([[1.0]]),
+                                            "H_subs": np.array([[1.0, 1, 1, 1]]), "H_vals": np.array([[1.0]])})
+    data = load_system(tmp_path / "big.mat")
+    assert data["M"].shape == (n, n) and data["M"].nnz == n and data["G"].nnz == 1
+
+
 SCENE = ('[model]\nsolver = "polynomial"\nfile = "{file}"\n[analysis]\nmaster_modes = [0, 2]\nmethods = ["dnf"]\n'
          '[analysis.backbone]\norder = 7\npoints = 5\n[output]\ndir = "{out}"\n')
 
@@ -217,12 +250,37 @@ def half_pair(tmp_path, change: dict) -> str:
     return "bad.npz"
 
 
+def bad_ir_v73(tmp_path, change: dict) -> str:
+    """A v7.3 file whose sparse M has a row index past its rows (scipy does not check it: a segfault later)."""
+    import h5py
+
+    write_v73(tmp_path / "bad.mat", matlab_arrays())
+    with h5py.File(tmp_path / "bad.mat", "r+") as f:
+        ir = f["M/ir"][()]
+        ir[3] = 10**6
+        del f["M/ir"]
+        f["M/ir"] = ir
+    return "bad.mat"
+
+
+def wrong_n(tmp_path, change: dict) -> str:
+    """M and K as coordinate lists with an 'n' far above their entries (n = 1e9 was an out-of-memory kill:
+    n-sized sparse arrays; 1e6 here keeps the code before the check from filling the machine)."""
+    A, B = sp.coo_matrix(M), sp.coo_matrix(K)
+    np.savez(tmp_path / "bad.npz", M_subs=np.stack([A.row, A.col], 1), M_vals=A.data, n=np.array(10**6),
+             K_subs=np.stack([B.row, B.col], 1), K_vals=B.data, G_subs=GL[0], G_vals=GL[1], H_subs=HL[0],
+             H_vals=HL[1])
+    return "bad.npz"
+
+
 G_OUT = GL[0].copy()
 G_OUT[4, 2] = N  # one past the last dof (0-based)
 G_ZERO = GL[0] + 1.0
 G_ZERO[3, 1] = 0  # a 0 in MATLAB's 1-based subscripts
 H_NAN = HL[1].copy()
 H_NAN[10] = np.nan
+G_HUGE = GL[0] + 1.0
+G_HUGE[2, 0] = 1e30  # beyond int64: refused as a float, not cast with a warning on stderr (review of issue 35)
 
 
 @pytest.mark.parametrize("write, change, expected", [
@@ -233,7 +291,11 @@ H_NAN[10] = np.nan
     (bad_mat, {"H_subs": HL[0][:, :3] + 1.0}, r"array 'H_subs' has shape \(\d+, 3\), expected \(k, 4\)"),
     (half_pair, {}, r"missing array 'G_vals' next to 'G_subs'"),
     (bad_mat, {"G_subs": {"subs": 1.0}}, r"variable 'G_subs' is a MATLAB struct; export plain arrays"),
-], ids=["out_of_range", "zero_in_matlab", "lengths", "nan", "subs_width", "half", "struct"])
+    (bad_ir_v73, {}, r"sparse variable 'M' is inconsistent \(row index values must be < 7\)"),
+    (wrong_n, {}, r"array 'n' says 1000000 dofs but M and K hold \d+ entries"),
+    (bad_mat, {"G_subs": G_HUGE}, r"array 'G_subs' row 3 holds subscripts \[1e\+30, .* outside 1..7"),
+], ids=["out_of_range", "zero_in_matlab", "lengths", "nan", "subs_width", "half", "struct", "v73_bad_ir", "wrong_n",
+        "huge"])
 def test_bad_lists_are_one_line_input_errors(tmp_path, capsys, write, change, expected):
     file = write(tmp_path, change)
     (tmp_path / "s.toml").write_text(SCENE.format(file=file, out="out"))

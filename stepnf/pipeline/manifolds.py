@@ -1,0 +1,200 @@
+"""The backbone stage's masters on manifolds of several modes (``[analysis.backbone] manifolds``, issue 33).
+
+:func:`resolve_manifolds` turns the scene's sets (indices or labels, as ``master_modes``) or ``"auto"`` into
+:class:`ManifoldPlan` s of computed modes: with ``"auto"`` each master's set is the master and the modes the
+single-mode DPIM flags near 1:1..1:N of it (:func:`stepnf.dpim.parametrisation.resonance_flags`, the same
+flags, the same tolerance), overlapping sets merged, and the plan says which modes and why. Each manifold is
+parametrised once (:func:`stepnf.dpim.multimode.manifold.parametrise_manifold`, forces through the run's
+evaluator and checkpoint, plans ``backbone_m<modes>_<k>``; its own shifted factorisations, freed when done)
+and shared by its masters; each master gets the branches that start at its linear mode
+(:func:`stepnf.dpim.multimode.backbone.backbone_branches`) and the block of
+:func:`stepnf.dpim.manifold_report.manifold_report`. HDF5 arrays (``arrays/``, as the single-mode
+``backbone_<p>_*``): the manifold's coefficients once, ``backbone_<p>_manifold_*`` under its first master
+(the others' blocks name it in ``manifold.stored_with``), and every master's branches,
+``backbone_<p>_branch<i>_*`` (i = 0 the continuing branch, then the coupled ones).
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from stepnf.dpim.manifold_report import manifold_report, trace_top
+from stepnf.dpim.multimode.backbone import backbone_branches
+from stepnf.dpim.multimode.manifold import ManifoldResult, parametrise_manifold
+from stepnf.dpim.parametrisation import DPIM, DPIMTolerances, ModeSpectrum, resonance_flags
+from stepnf.dpim.solves import Solvers
+from stepnf.errors import NumericalError, SceneError
+from stepnf.keys.manifolds import MAX_MODES
+from stepnf.pipeline.outputs import BackboneOutput
+from stepnf.pipeline.plan import resolve_masters
+from stepnf.pipeline.state import StageView
+from stepnf.plugin.dofs import rotation_mask
+
+KEY = "analysis.backbone.manifolds"
+#: A manifold's forcing is sampled at many more fields than a single mode's (near 1:4, 5 dofs, order 15: 476544
+#: against 2336), so its checkpoint chunks hold up to this many bytes of fields (at least the run's chunk): on that
+#: system the run's 64-field chunks cost 7447 checkpoint writes, 20 of the stage's 43 s (fsync); on a model of
+#: 131k dofs or more a chunk stays the run's.
+CHUNK_BYTES = 8 * 2 ** 20
+
+
+def chunked(forces: Any, n: int) -> Any:
+    """The run's force evaluator with chunks of up to :data:`CHUNK_BYTES` (a copy: the run's keeps its own)."""
+    out = copy.copy(forces)
+    out.batch_size = max(int(forces.batch_size), CHUNK_BYTES // (8 * max(int(n), 1)))
+    return out
+
+
+@dataclass(frozen=True)
+class ManifoldPlan:
+    """One manifold: its ``modes`` (indices among the computed elastic modes, ascending), ``ratios`` (None:
+    found from the frequencies), ``index`` its position in the scene's list (None: chosen by "auto"),
+    ``chosen`` ("explicit" or "auto") and ``why``."""
+
+    modes: tuple[int, ...]
+    ratios: tuple[int, ...] | None
+    index: int | None
+    chosen: str
+    why: str
+
+
+def _resolve_set(state: StageView, i: int, group: tuple) -> list[int]:
+    """The computed modes a scene's set names (a SceneError naming ``manifolds[i][j]`` otherwise)."""
+    out = []
+    for j, entry in enumerate(group):
+        try:
+            scene = _with_masters(state.scene, [entry])
+            [s] = resolve_masters(scene, state.labels, state.basis.n_elastic, complete=True)
+        except SceneError as exc:
+            raise SceneError(state.scene.file, f"{KEY}[{i}][{j}]", exc.message.replace(
+                "give a 0-based mode index", "give a 0-based mode index in the manifold")) from None
+        out.append(int(s))
+    return out
+
+
+def _with_masters(scene: Any, masters: list) -> Any:
+    return replace(scene, master_modes=masters)
+
+
+def explicit_plans(state: StageView, spec: Any) -> list[ManifoldPlan]:
+    """The scene's sets resolved (unknown mode, a mode named twice, a set holding no master: SceneError)."""
+    plans, owner = [], {}
+    for i, group in enumerate(spec.manifolds):
+        modes = _resolve_set(state, i, group)
+        for j, s in enumerate(modes):
+            if s in owner:
+                raise SceneError(state.scene.file, f"{KEY}[{i}][{j}]",
+                                 f"{group[j]!r} is mode {s}, already in manifold {owner[s]} ({KEY}[{owner[s]}]): a "
+                                 "mode belongs to one manifold at most")
+            owner[s] = i
+        if not set(modes) & set(state.masters):
+            raise SceneError(state.scene.file, f"{KEY}[{i}]", f"the manifold of modes {modes} holds no master mode "
+                             f"(master_modes resolve to {list(state.masters)}): its backbones would not be reported")
+        k = spec.ratios[i] if spec.ratios is not None else None
+        order = np.argsort(modes)
+        plans.append(ManifoldPlan(tuple(int(modes[o]) for o in order),
+                                  None if k is None else tuple(int(k[o]) for o in order), i, "explicit",
+                                  f"manifolds[{i}] of the scene"))
+    return plans
+
+
+def auto_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
+    """Each master with the modes flagged near 1:m of it (m = 1..N), overlapping sets merged (module docstring);
+    a set above :data:`~stepnf.keys.manifolds.MAX_MODES` modes keeps the closest resonances."""
+    sets: list[tuple[set[int], list[str]]] = []
+    for p in state.masters:
+        twin_index = state.basis.twins(p)
+        try:
+            flags = resonance_flags(state.K, state.M, float(state.omega[p]), spec.order, state.omega, p,
+                                    state.phi[:, twin_index] if twin_index else None, twin_index or None, tol,
+                                    state.scene.degeneracy_tolerance)
+        except NumericalError:  # an undeclared twin: the single-mode path says so
+            continue
+        near = sorted((abs(f["ratio"] - f["harmonic"]) / f["harmonic"], int(f["mode"]), int(f["harmonic"]))
+                      for f in flags if str(f.get("kind", "")).startswith("internal_resonance_1_"))
+        near = near[:MAX_MODES - 1]
+        if not near:
+            continue
+        group = {int(p)} | {s for _, s, _ in near}
+        why = [f"mode {s} near {h} x w of mode {p} (w_s/w_p = {float(state.omega[s] / state.omega[p]):.4f})"
+               for _, s, h in near]
+        for other in [g for g in sets if g[0] & group]:
+            sets.remove(other)
+            group |= other[0]
+            why = other[1] + why
+        sets.append((group, why))
+    out = []
+    for group, why in sets:
+        modes = tuple(sorted(group))[:MAX_MODES]
+        out.append(ManifoldPlan(modes, None, None, "auto", "; ".join(why) + f" (resonance tolerance {tol:g})"))
+    return out
+
+
+def resolve_manifolds(state: StageView, spec: Any) -> list[ManifoldPlan]:
+    """The manifolds of the scene (module docstring); [] without ``manifolds``."""
+    if spec.manifolds is None:
+        return []
+    tol = state.tol.resonance if spec.resonance is None else float(spec.resonance)
+    return auto_plans(state, spec, tol) if spec.manifolds == "auto" else explicit_plans(state, spec)
+
+
+def plan_name(plan: ManifoldPlan) -> str:
+    """The manifold's name in checkpoint plans: ``m<mode>_<mode>...``."""
+    return "m" + "_".join(map(str, plan.modes))
+
+
+def parametrise(state: StageView, plan: ManifoldPlan, spec: Any, forces: Any, probe: float) -> ManifoldResult:
+    """The manifold of ``plan`` with the run's counters and tolerances (module docstring); ``forces`` the
+    run's evaluator wrapped in named plans (:class:`stepnf.pipeline.backbone.PlannedForces`)."""
+    modes = list(plan.modes)
+    model = DPIM(forces, state.K, state.M,
+                 ModeSpectrum(omega=state.omega, rigid=state.basis.rigid, modes=state.phi),
+                 Solvers(backend=state.backend), state.counters,
+                 DPIMTolerances(resonance=state.tol.resonance, twin=state.scene.degeneracy_tolerance,
+                                coupling=state.tol.coupling), rotations=rotation_mask(state.dirs))
+    try:
+        return parametrise_manifold(model, modes, state.phi[:, modes], state.omega[modes], spec.order, probe=probe,
+                                    ratios=plan.ratios, resonance=spec.resonance,
+                                    progress=lambda k: state.progress.bar(k - 1, spec.order - 1,
+                                                                          f"DPIM manifold {modes}"))
+    except ValueError as exc:  # ratios that do not match the frequencies
+        if plan.index is None or plan.ratios is None:
+            raise
+        raise SceneError(state.scene.file, f"analysis.backbone.ratios[{plan.index}]", str(exc)) from None
+
+
+def master_output(state: StageView, man: ManifoldResult, plan: ManifoldPlan, p: int, spec: Any, wmax: Any,
+                  probe: float, fallback: float, stored_with: int) -> BackboneOutput:
+    """Master ``p``'s branches on ``man``, its block and its arrays (the manifold's with them when
+    ``stored_with`` is ``p``)."""
+    store = stored_with == p
+    j = list(man.masters).index(p)
+    linear = getattr(wmax, "linear", None)
+    h = float(wmax.h) if wmax is not None else 1.0
+    top = trace_top(man, j, spec, fallback)
+    # started at 1/200 of the STEP amplitude at most (a small amplitude, where the linear mode's guess holds)
+    branches = backbone_branches(man, j, top, r0=min(top, fallback) / 200.0, tol=spec.tolerance,
+                                 transverse=linear, h=h)
+    branches.sort(key=lambda b: not b.kind.startswith("continues mode"))
+    tol = state.tol.resonance if spec.resonance is None else float(spec.resonance)
+    block = manifold_report(man, j, branches, spec, probe=probe, resonance=tol, transverse=linear, h=h,
+                            chosen=plan.chosen, why=plan.why)
+    block["manifold"]["stored_with"] = int(stored_with)
+    arrays: dict[str, np.ndarray] = {}
+    if store:
+        arrays.update({f"backbone_{p}_manifold_{k}": v for k, v in man.arrays().items()})
+    for i, b in enumerate(branches):
+        arrays.update({f"backbone_{p}_branch{i}_{k}": v for k, v in b.arrays().items()})
+    for key in ("amplitude", "omega", "w_max_over_h"):
+        if block[key] is not None:
+            arrays[f"backbone_{p}_{key}"] = np.asarray([np.nan if v is None else float(v) for v in block[key]])
+    return BackboneOutput(None, block, (), arrays)
+
+
+def manifold_text(plan: ManifoldPlan, man: ManifoldResult) -> str:
+    """One line for the progress output: which manifold, why, its ratios and kept monomials."""
+    k = "none" if man.ratios is None else ":".join(map(str, man.ratios))
+    return (f"manifold of modes {list(plan.modes)} ({plan.chosen}: {plan.why}): ratios {k}, order {man.order}")
