@@ -128,6 +128,10 @@ def modal_backbone(scene: Scene, model: ModalModel, rec: ModeResult, labels: lis
     ``analysis.backbone`` (exit 2); ``w_over_h`` without its transverse field too.
     """
     spec, p = scene.backbone, rec.index
+    if spec.manifolds is not None:  # (issue 33: manifolds of several modes are parametrised from a solver's forces)
+        raise SceneError(scene.file, "analysis.backbone.manifolds", f"manifolds of several modes are not computed "
+                         f"for the {scene.solver!r} model (modal coordinates) yet: remove manifolds (and "
+                         "resonance, ratios) for its single-mode backbones, or use a solver adapter")
     system = modal_system(model, p)
     if system is None:
         raise SceneError(scene.file, "analysis.backbone", f"the {scene.solver!r} model gives only g^s_pp and "

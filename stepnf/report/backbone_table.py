@@ -71,8 +71,17 @@ def manifold_lines(b: dict[str, Any], p: int) -> list[str]:
         amps = [a for a in c["A"][j] if a is not None]
         stable = sum(c["stable"]) / max(len(c["stable"]), 1)
         out.append(f"  coupled branch: Omega {c['Omega'][0]:.6g} .. {c['Omega'][-1]:.6g}, A of mode {c['masters'][j]} "
-                   f"{min(amps):.4g} .. {max(amps):.4g}, {100 * stable:.0f}% of its points stable")
+                   f"{min(amps):.4g} .. {max(amps):.4g}, {100 * stable:.0f}% of its points stable, {_valid(c)}")
     return out
+
+
+def _valid(c: dict[str, Any]) -> str:
+    """Where a coupled branch (traced past it) is valid, in the A of its master: orders N-2 and N
+    (:func:`stepnf.dpim.multimode.backbone.validity`)."""
+    v, why = c.get("valid_up_to"), c.get("valid_reason")
+    if v is not None:
+        return f"valid up to A = {float(v):.4g} ({why}); traced beyond"
+    return "orders agree over the range traced" if why == "not reached" else f"no validity range ({why})"
 
 
 def limit_text(b: dict[str, Any]) -> str:

@@ -19,21 +19,25 @@ from stepnf.io.results import RunResult, label_text
 from stepnf.report.backbone_plot import BEYOND, panels
 from stepnf.report.figures import save_figure
 
+#: Opacity of a branch beyond its own validity limit.
+FADED = 0.35
 
-def _runs(stable: np.ndarray) -> list[tuple[int, int, bool]]:
-    """``(start, stop, stable)`` of the maximal runs of equal stability, each overlapping the next by one point
-    (the curve stays connected)."""
+
+def _runs(stable: np.ndarray) -> list[tuple[int, int, int]]:
+    """``(start, stop, value)`` of the maximal runs of equal values (stability, or a code), each overlapping the
+    next by one point (the curve stays connected)."""
     out, start = [], 0
     for i in range(1, len(stable) + 1):
         if i == len(stable) or stable[i] != stable[start]:
-            out.append((start, min(i + 1, len(stable)), bool(stable[start])))
+            out.append((start, min(i + 1, len(stable)), int(stable[start])))
             start = i
     return out
 
 
 def draw_branch(ax, c: dict[str, Any], p: int, w: float, color: str, label: str, top: float) -> None:
     """One branch (a JSON branch of the block) of master ``p``: ``k_p Omega / w`` against ``A_p``, dashed where
-    unstable; the points beyond ``A_p = top`` left out (a branch is traced past its validity)."""
+    unstable, faded beyond the branch's own validity limit (``valid_up_to``: orders N-2 and N); the points beyond
+    ``A_p = top`` left out (a branch is traced past its validity)."""
     j = c["masters"].index(p)
     k = float(c["ratios"][j])
     A = np.asarray([np.nan if a is None else a for a in c["A"][j]], dtype=float)
@@ -41,11 +45,14 @@ def draw_branch(ax, c: dict[str, Any], p: int, w: float, color: str, label: str,
     stable = np.asarray(c["stable"], dtype=bool)
     inside = ~(A > top)
     A, y, stable = A[inside], y[inside], stable[inside]
+    valid = c.get("valid_up_to")
+    within = ~(A > float(valid)) if valid is not None else np.ones(len(A), dtype=bool)
     shown = set()
-    for a, b, ok in _runs(stable):
-        name = f"{label}{'' if ok else ', unstable'}"
+    for a, b, code in _runs(2 * stable + within):  # (stable, within its validity) as one code per point
+        ok, trusted = bool(code // 2), bool(code % 2)
+        name = f"{label}{'' if ok else ', unstable'}{'' if trusted else ', beyond validity'}"
         ax.plot(A[a:b], y[a:b], color=color, ls="-" if ok else "--", lw=1.6 if color == "k" else 1.1,
-                label=None if name in shown else name)
+                alpha=1.0 if trusted else FADED, label=None if name in shown else name)
         shown.add(name)
 
 
@@ -83,6 +90,6 @@ def plot_branches(result: RunResult, path: str | Path) -> Path | None:
     fig, axes = panels(len(masters))
     for ax, mode in zip(axes, masters):
         draw_branches(ax, mode)
-    fig.suptitle("backbone branches (dashed: unstable)")
+    fig.suptitle("backbone branches (dashed: unstable; faded: beyond validity)")
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)

@@ -35,6 +35,7 @@ from stepnf.errors import AdapterError, NumericalError, SceneError
 from stepnf.plugin.dofs import peak, translation_mask
 from stepnf.verify.clock import OrbitClock
 from stepnf.verify.deflection import cap_amplitudes
+from stepnf.verify.unverified import with_unverified
 
 #: Largest model (dofs) checked by shooting; larger ones by time integration.
 SHOOTING_LIMIT = 300
@@ -378,7 +379,7 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                     clock.stop()
                 entry["checks"].append(check_dict(chk, res.omega))
         clock.finish()
-        return doc
+        return with_unverified(doc, result, say)  # a master on a manifold: said not verified
     finally:
         adapter.close()
 
@@ -443,7 +444,7 @@ def format_report(doc: dict) -> str:
         for f in m.get("failed", []):
             lines.append(f"  {f['amplitude']:12.6g}  no orbit: {f['error']}")
         if not m["checks"] and not m.get("failed"):
-            lines.append("  no orbit checked (above: why)")
+            lines.append(f"  {m.get('not_verified') or 'no orbit checked (above: why)'}")
     lines.append("\nA: amplitude of q = phi^T M x measured on the orbit; w_DPIM at that A; distance: largest "
                  "relative energy-norm distance of the orbit from the parametrisation")
     return "\n".join(lines)
