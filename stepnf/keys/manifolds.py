@@ -14,6 +14,8 @@ modes, in the backbone stage (:func:`stepnf.pipeline.manifolds.resolve_manifolds
 """
 from __future__ import annotations
 
+import math
+
 from typing import Any
 
 from stepnf.errors import SceneError
@@ -88,8 +90,10 @@ def check_ratios(file: Any, key: str, value: Any) -> tuple[tuple[int, ...] | Non
         if not isinstance(k, list):
             raise SceneError(file, f"{key}[{i}]", f"expected a list of integers such as [1, 4] (or []), "
                              f"got {describe_value(k)}")
-        out.append(tuple(int(check_number(file, f"{key}[{i}][{j}]", v, integer=True, lo=1, hi=MAX_RATIO,
-                                          why=" (a resonance ratio)")) for j, v in enumerate(k)) or None)
+        ks = tuple(int(check_number(file, f"{key}[{i}][{j}]", v, integer=True, lo=1, hi=MAX_RATIO,
+                                    why=" (a resonance ratio)")) for j, v in enumerate(k))
+        g = math.gcd(*ks) if ks else 1
+        out.append(tuple(x // g for x in ks) or None)  # 2:8 is 1:4
     return tuple(out)
 
 

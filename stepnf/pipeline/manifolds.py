@@ -16,6 +16,7 @@ and shared by its masters; each master gets the branches that start at its linea
 from __future__ import annotations
 
 import copy
+import warnings
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -23,10 +24,10 @@ import numpy as np
 
 from stepnf.dpim.manifold_report import manifold_report, trace_top
 from stepnf.dpim.multimode.backbone import backbone_branches
-from stepnf.dpim.multimode.manifold import ManifoldResult, parametrise_manifold
+from stepnf.dpim.multimode.manifold import MAX_RATIO, ManifoldResult, find_ratios, parametrise_manifold
 from stepnf.dpim.parametrisation import DPIM, DPIMTolerances, ModeSpectrum, resonance_flags
 from stepnf.dpim.solves import Solvers
-from stepnf.errors import NumericalError, SceneError
+from stepnf.errors import ModelWarning, NumericalError, SceneError
 from stepnf.keys.manifolds import MAX_MODES
 from stepnf.pipeline.outputs import BackboneOutput
 from stepnf.pipeline.plan import resolve_masters
@@ -102,9 +103,13 @@ def explicit_plans(state: StageView, spec: Any) -> list[ManifoldPlan]:
 
 
 def auto_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
-    """Each master with the modes flagged near 1:m of it (m = 1..N), overlapping sets merged (module docstring);
-    a set above :data:`~stepnf.keys.manifolds.MAX_MODES` modes keeps the closest resonances."""
-    sets: list[tuple[set[int], list[str]]] = []
+    """Each master with the modes flagged near 1:h of it (h = 1..:data:`MAX_RATIO`: the resonances whose ratios
+    decide the reduced dynamics), the closest first, at most :data:`~stepnf.keys.manifolds.MAX_MODES` modes;
+    overlapping sets merged only when the union still has a common ratio vector (integers up to MAX_RATIO) and
+    fits MAX_MODES, else the later master keeps the modes no earlier set holds (module docstring). A master with
+    no such mode keeps its single-mode backbone (one :class:`~stepnf.errors.ModelWarning` when no master has one:
+    "auto" looked and found nothing)."""
+    sets: list[tuple[set[int], dict[int, str]]] = []  # (modes, {mode: why it joined})
     for p in state.masters:
         twin_index = state.basis.twins(p)
         try:
@@ -114,23 +119,40 @@ def auto_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
         except NumericalError:  # an undeclared twin: the single-mode path says so
             continue
         near = sorted((abs(f["ratio"] - f["harmonic"]) / f["harmonic"], int(f["mode"]), int(f["harmonic"]))
-                      for f in flags if str(f.get("kind", "")).startswith("internal_resonance_1_"))
-        near = near[:MAX_MODES - 1]
+                      for f in flags if str(f.get("kind", "")).startswith("internal_resonance_1_")
+                      and int(f["harmonic"]) <= MAX_RATIO)[:MAX_MODES - 1]
         if not near:
             continue
-        group = {int(p)} | {s for _, s, _ in near}
-        why = [f"mode {s} near {h} x w of mode {p} (w_s/w_p = {float(state.omega[s] / state.omega[p]):.4f})"
-               for _, s, h in near]
+        group = {int(p)} | {m for _, m, _ in near}
+        why = {m: f"mode {m} near {h} x w of mode {p} (w_s/w_p = {float(state.omega[m] / state.omega[p]):.4f})"
+               for _, m, h in near}
         for other in [g for g in sets if g[0] & group]:
-            sets.remove(other)
-            group |= other[0]
-            why = other[1] + why
-        sets.append((group, why))
-    out = []
-    for group, why in sets:
-        modes = tuple(sorted(group))[:MAX_MODES]
-        out.append(ManifoldPlan(modes, None, None, "auto", "; ".join(why) + f" (resonance tolerance {tol:g})"))
-    return out
+            if _mergeable(state, other[0], group, tol):
+                sets.remove(other)
+                group |= other[0]
+                why = {**other[1], **why}
+            else:  # no common ratio vector (or too many modes): this master keeps what no earlier set holds
+                group -= other[0]
+        why = {m: w for m, w in why.items() if m in group}
+        if int(p) in group and len(group) > 1:
+            sets.append((group, why))
+    if not sets:
+        warnings.warn(f"[analysis.backbone] manifolds = \"auto\": no master has a mode near 1:1 .. 1:{MAX_RATIO} of "
+                      f"it within the resonance tolerance {tol:g}; every backbone is single-mode", ModelWarning,
+                      stacklevel=2)
+    return [ManifoldPlan(tuple(sorted(group)), None, None, "auto",
+                         "; ".join(why[m] for m in sorted(why)) + f" (resonance tolerance {tol:g})")
+            for group, why in sets]
+
+
+def _mergeable(state: StageView, a: set[int], b: set[int], tol: float) -> bool:
+    """Whether the modes ``a | b`` can share one manifold: at most MAX_MODES, with a common ratio vector of
+    integers up to MAX_RATIO within ``tol`` (what the reduced dynamics' branches need)."""
+    modes = sorted(a | b)
+    if len(modes) > MAX_MODES:
+        return False
+    k = find_ratios(np.asarray(state.omega, dtype=float)[modes], tol, MAX_RATIO)
+    return k is not None and int(k.max()) <= MAX_RATIO
 
 
 def resolve_manifolds(state: StageView, spec: Any) -> list[ManifoldPlan]:

@@ -398,3 +398,18 @@ def test_stability_does_not_depend_on_the_amplitude_range():
         inphase = [b for b in branches if abs(b.zeta[-1][1] / b.zeta[-1][0] - 1) < 1e-9]
         assert len(inphase) == 1 and not inphase[0].stable.any(), A_stop
         assert any(b.stable.all() for b in branches)  # the out-of-phase (or elliptic) branch stays stable
+
+
+def test_validity_ends_where_the_orders_disagree_on_stability():
+    """Exact 1:2 (a = 1), master 1 at order 7: its own branch (x1 = 0) is unstable at every amplitude in the full
+    model (the Mathieu equation x1'' + (1 + 2 A cos 2t) x1 = 0: |trace| / 2 = 1.01 .. 8800 for A = 0.1 .. 30), but
+    order 7 calls it stable from A = 2.1 (order 5 from 2.8): the validity limit must end before, where orders 5
+    and 7 disagree (measured 1.906, "stability differs"; before the review of issue 33 it was "not reached" to
+    A = 50 while stable was printed)."""
+    K, M = np.diag([1.0, 4.0]), np.eye(2)
+    f = batch_force(K, sym((2, 2, 2), {(0, 0, 1): 1.0}), np.zeros((2, 2, 2, 2)))
+    man = parametrise_manifold(DPIM(f, K, M), [0, 1], np.eye(2), np.array([1.0, 2.0]), 7, probe=1.0)
+    [b] = backbone_branches(man, 1, 50.0, tol=1e-3)
+    first_stable = float(b.A[np.argmax(b.stable), 1])
+    assert b.stable.any() and b.valid_reason == "stability differs"
+    assert b.valid_A is not None and b.valid_A < first_stable

@@ -208,3 +208,15 @@ def test_branches_figure_dashes_the_unstable_parts(one_to_two):
     styles = {line.get_linestyle() for line in ax.get_lines()}
     assert "--" in styles and "-" in styles
     pyplot().close(fig)
+
+
+def test_auto_merges_only_sets_with_a_common_ratio(folder):
+    """resonance = 0.12: master 0 takes modes 3 (3.1 ~ 3 x 1) and 4 (3.954 ~ 4 x 1), master 1 (1.7) finds mode 3
+    near 2 x its own (9%); (1, 1.7, 3.1, 3.954) have no common ratio vector of integers up to 4, so the sets are
+    not merged and master 1 keeps the single-mode backbone (before the review of issue 33 "auto" built
+    [0, 1, 3, 4] and both backbones failed, exit 3, "not resonant for the ratios")."""
+    res = run_scene(load_scene(_write(folder, "auto12.toml", scene(
+        'order = 5\nmanifolds = "auto"\nresonance = 0.12\n', (0, 1)).replace('"out"', '"auto12"'))))
+    b0, b1 = (m.backbone for m in res.modes)
+    assert b0["manifold"]["modes"] == [0, 3, 4] and b0["manifold"]["ratios"] == [1, 3, 4]
+    assert "manifold" not in b1 and len(b1["amplitude"]) > 0

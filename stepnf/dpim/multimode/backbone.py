@@ -45,6 +45,8 @@ def trace(system: ReducedSystem, measure: OrbitMeasure, u0: np.ndarray, kind: st
     direction = np.zeros(2 * m + 2)
     direction[mode] = 1.0
     pts, bps = continue_branch(system, u0, direction=direction, stop=stop, max_points=max_points)
+    if len(pts) > 1 and not pts[-1, 2 * m] > 0:  # the point that stopped the trace at Omega <= 0: no orbit
+        pts, bps = pts[:-1], [i for i in bps if i < len(pts) - 2]
     zeta = np.asarray([normalise_phase(system, u[:m] + 1j * u[m:2 * m], mode) for u in pts])
     A = np.asarray([measure.amplitudes(z) for z in zeta])
     stable = np.asarray([system.stability(u)[0] for u in pts])
@@ -125,7 +127,8 @@ def point_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> 
 def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
              max_points: int = 400) -> tuple[float | None, str]:
     """``(A_max, reason)`` for ``branch`` of ``manifold`` at order N against order N - 2 (module docstring):
-    ``"orders differ"``, ``"shapes differ"``, ``"amplitude folds"`` (A of the master stops growing first), ``"not reached"``
+    ``"orders differ"``, ``"shapes differ"``, ``"stability differs"`` (orders N - 2 and N call the orbit stable and
+    unstable on both sides of it), ``"amplitude folds"`` (A of the master stops growing first), ``"not reached"``
     (A_max None) or ``"no lower order"`` (N < 5: A_max None)."""
     N = int(manifold.order)
     if N < 5:
@@ -162,6 +165,9 @@ def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
             return float(prev_A), "amplitude folds"
         if A[i] > AL[grow - 1]:  # order N - 2 folds or ends (its trace stopped) below: nothing to compare with
             return float(prev_A), "orders differ"
+        il = min(int(np.searchsorted(AL[:grow], A[i])), grow - 1)  # order N - 2's points around A[i]
+        if all(bool(branch.stable[i]) != bool(low.stable[t]) for t in {max(il - 1, 0), il}):
+            return float(prev_A), "stability differs"  # (exact 1:2's upper branch: stable at N = 7 beyond A = 2.2)
         df, ds = excesses(_u(branch, i), float(spline(A[i])))
         d = max(df, ds)
         if d > 0:
