@@ -2,8 +2,9 @@
 
 :func:`resolve_manifolds` turns the scene's sets (indices or labels, as ``master_modes``) or ``"auto"`` into
 :class:`ManifoldPlan` s of computed modes: with ``"auto"`` each master's set is the master and the modes the
-single-mode DPIM flags near 1:1..1:N of it (:func:`stepnf.dpim.parametrisation.resonance_flags`, the same
-flags, the same tolerance), overlapping sets merged, and the plan says which modes and why. Each manifold is
+single-mode DPIM flags near 1:1..1:4 of it (:func:`stepnf.dpim.parametrisation.resonance_flags`, the same
+flags, the same tolerance), overlapping sets merged when they share a ratio vector (:func:`auto_plans`), and the
+plan says which modes and why. Each manifold is
 parametrised once (:func:`stepnf.dpim.multimode.manifold.parametrise_manifold`, forces through the run's
 evaluator and checkpoint, plans ``backbone_m<modes>_<k>``; its own shifted factorisations, freed when done)
 and shared by its masters; each master gets the branches that start at its linear mode
