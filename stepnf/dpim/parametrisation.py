@@ -368,6 +368,14 @@ def shared_nodes(order: int) -> tuple[np.ndarray, dict[int, tuple[np.ndarray, np
     return theta, {0: (ms0, B0), 1: (ms1, B1)}
 
 
+def dense_spectrum(K, M) -> np.ndarray:
+    """Every angular frequency of (K, M), ascending, by a dense generalised eigen-solve (negative round-off
+    eigenvalues clipped to 0): for models of at most :data:`DENSE_SPECTRUM_LIMIT` dofs."""
+    Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
+    Md = M.toarray() if sp.issparse(M) else np.asarray(M)
+    return np.sqrt(np.clip(sla.eigh(Kd, Md, eigvals_only=True), 0.0, None))
+
+
 def resonance_flags(K, M, omega: float, order: int, spectrum, master, twins, twin_index,
                     tol: float, twin_tol: float) -> list[dict[str, Any]]:
     """Flags of modes near ``m omega`` (2 <= m <= order; m = 1 for a non-declared mode); refuses undeclared twins.
@@ -385,10 +393,7 @@ def resonance_flags(K, M, omega: float, order: int, spectrum, master, twins, twi
         if n > DENSE_SPECTRUM_LIMIT:
             return [new_flag("resonance_check_skipped", mode=None,
                              message="DPIM: no spectrum given for a large model: internal resonances not checked")]
-        Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
-        Md = M.toarray() if sp.issparse(M) else np.asarray(M)
-        lam = sla.eigh(Kd, Md, eigvals_only=True)
-        spectrum = np.sqrt(np.clip(lam, 0.0, None))
+        spectrum = dense_spectrum(K, M)
     spectrum = np.asarray(spectrum, dtype=float)
     if master is None:  # the master is the computed mode nearest to omega
         master = int(np.argmin(np.abs(spectrum - omega)))

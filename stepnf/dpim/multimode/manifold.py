@@ -34,13 +34,12 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 
 from stepnf.dpim.multimode.solves import ManifoldSolves, shift_key
 from stepnf.dpim.multimode.monomials import (Monomial, MonomialSampling, SampledForcing, conj, frequency, monomials,
                                    powers)
-from stepnf.dpim.parametrisation import DENSE_SPECTRUM_LIMIT, DPIM, EIGENPAIR_FLOOR, check_mode
+from stepnf.dpim.parametrisation import DENSE_SPECTRUM_LIMIT, DPIM, EIGENPAIR_FLOOR, check_mode, dense_spectrum
 from stepnf.errors import NumericalError
 from stepnf.flags import new_flag
 from stepnf.runtime.counters import Counters
@@ -195,12 +194,7 @@ def spectrum_of(dpim: DPIM) -> np.ndarray | None:
     """The computed modes' frequencies, or all of them (dense) for n <= DENSE_SPECTRUM_LIMIT, else None."""
     if dpim.spectrum.omega is not None:
         return np.asarray(dpim.spectrum.omega, dtype=float)
-    K, M = dpim.K, dpim.M
-    if K.shape[0] > DENSE_SPECTRUM_LIMIT:
-        return None
-    Kd = K.toarray() if sp.issparse(K) else np.asarray(K)
-    Md = M.toarray() if sp.issparse(M) else np.asarray(M)
-    return np.sqrt(np.clip(sla.eigh(Kd, Md, eigvals_only=True), 0.0, None))
+    return None if dpim.K.shape[0] > DENSE_SPECTRUM_LIMIT else dense_spectrum(dpim.K, dpim.M)
 
 
 def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.ndarray, omegas: np.ndarray,
@@ -214,8 +208,8 @@ def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.nda
     ``probe``: the polarisation probe (model length units, :mod:`stepnf.dpim.polarisation`); ``ratios``: the
     resonance vector k (m,) that decides the resonant monomials (None: a resonance of integers up to
     :data:`MAX_RATIO` the frequencies show within ``resonance`` decides the same way; without one the tolerance
-    decides each small denominator, and k is found afterwards from the kept monomials if they fit one); ``resonance``: that tolerance (None: ``dpim.tolerances.resonance``); ``progress(p)`` after
-    each order.
+    decides each small denominator, and k is found afterwards from the kept monomials if they fit one);
+    ``resonance``: that tolerance (None: ``dpim.tolerances.resonance``); ``progress(p)`` after each order.
     """
     order = int(order)
     if order < 3 or order % 2 == 0:
