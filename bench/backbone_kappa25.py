@@ -269,7 +269,7 @@ READING = """Reading (run of 2026-12-02, 3D at order 9; the tables 'by order N' 
   a change of type of (0,2) (softening -> hardening near W_max/h ~ 0.7) and of (2,1) (hardening ->
   softening near 0.3) is possible but NOT decided by a single-mode backbone; the validity test (orders
   N-2 and N within 1e-3 in frequency and 3e-2 in shape) is coarser than the effect for (2,1). A two-mode
-  (1:2) manifold is the tool for these."""
+  (1:2) manifold is the tool for these: `docs/backbone/kappa25_manifolds.md` (issue 33) has them."""
 
 
 if __name__ == "__main__":

@@ -116,7 +116,9 @@ class BackboneView:
 class ModeView:
     """One master mode: ``index`` among the elastic modes, ``label``, ``omega``, the slow/fast ratio ``rho``
     (and the mode ``rho_mode`` it is measured against), ``methods`` (name -> :class:`MethodView`, in the
-    scene's order), the mode's own ``flags`` and its ``backbone`` (None without ``[analysis.backbone]``)."""
+    scene's order), the mode's own ``flags`` and its ``backbone`` (None without ``[analysis.backbone]``); ``frc``: its
+    forced responses, one read-only mapping per forcing level as the JSON document's ``frc`` (None without
+    ``[analysis.forcing]``; empty when the master has none, ``frc_reason`` says why)."""
 
     index: int
     label: tuple[int, ...] | str | None
@@ -127,6 +129,8 @@ class ModeView:
     methods: Mapping[str, MethodView]
     flags: tuple[Mapping[str, Any], ...]
     backbone: BackboneView | None
+    frc: tuple[Mapping[str, Any], ...] | None = None
+    frc_reason: str | None = None
 
     @property
     def frequency(self) -> float:
@@ -150,7 +154,8 @@ class ModeView:
         return cls(index=int(d["index"]), label=label_of(d.get("label")), omega=float(d["omega"]),
                    omega_bar=number(d.get("omega_bar")), rho=number(d.get("rho")), rho_mode=d.get("rho_mode"),
                    methods=MappingProxyType(methods), flags=tuple(map(_frozen, d.get("flags") or ())),
-                   backbone=None if bb is None else BackboneView.of(bb))
+                   backbone=None if bb is None else BackboneView.of(bb),
+                   frc=None if d.get("frc") is None else tuple(map(_frozen, d["frc"])), frc_reason=d.get("frc_reason"))
 
 
 def _behaviour(T: float) -> str:

@@ -54,7 +54,9 @@ def result_from_document(doc: dict[str, Any]) -> RunResult:
         rec = ModeResult(index=int(m["index"]), label=_label(m.get("label")), omega=_num(m["omega"]),
                          rho=_float(m.get("rho")), rho_mode=m.get("rho_mode"), omega_bar=_float(m.get("omega_bar")),
                          w_max=_float(m.get("w_max")), step=dict(m.get("step") or {}),
-                         flags=list(m.get("flags") or []), backbone=_backbone(m.get("backbone")))
+                         flags=list(m.get("flags") or []), backbone=_backbone(m.get("backbone")),
+                         frc=m.get("frc") if isinstance(m.get("frc"), list) else None,
+                         frc_reason=m.get("frc_reason") if isinstance(m.get("frc_reason"), str) else None)
         for name, r in (m.get("methods") or {}).items():
             rec.methods[name] = MethodResult(method=name, T=_num(r["T"]), C=tuple(_num(c) for c in r.get("C", ())),
                                              flags=list(r.get("flags") or []), order=r.get("order", "modal"),

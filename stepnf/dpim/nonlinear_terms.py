@@ -36,7 +36,7 @@ for every pair; :func:`planned_evaluations`; the lower orders pay for the shared
 A value is kept while a later order needs it (known in advance: the plan of every order depends on N
 only), then dropped. Each order's new directions go to the black box in ONE batched call
 (``forces(U)``, or ``forces(U, out=U)`` for a ``forces`` with ``accepts_out``: the forces then replace
-the fields in the same array).
+the fields in the same array), or in several of whole directions when the fields exceed :data:`CALL_BYTES`.
 
 Round-off: each direction is probed at its own scale (its largest entry at ``probe``) with its ``K z``
 removed explicitly, so the estimates of :mod:`stepnf.dpim.polarisation` hold per value; H(u, v, w) sums seven
@@ -54,6 +54,10 @@ from stepnf.linalg.block_product import block_product
 from stepnf.dpim.polarisation import ForceBatch, PolarisationStats, checked_probe, probe_forces
 from stepnf.plugin.dofs import MAX_ROTATION, peak as dof_peak
 
+#: The largest batch of probe fields one call of ``forces`` gets (bytes): a multi-mode manifold's order sends
+#: ``2 x nodes x directions`` fields (order 5 of two modes on the 38k-dof cap: 12672 fields, 3.6 GiB, then as
+#: much again for their G and H3); single-mode runs stay one call per order up to ~1M dofs.
+CALL_BYTES = 2 ** 30
 #: A probe direction ``sum_i coef_i u_{q_i}``: ``((q, coef), ...)`` sorted by q, the first coefficient +1.
 Direction = tuple[tuple[int, int], ...]
 
@@ -213,13 +217,19 @@ class OrderForcing:
         return max(dof_peak(z, ~self.rotations), dof_peak(z, self.rotations) * self.probe / MAX_ROTATION)
 
     def _evaluate(self, new: list[Direction], p: int) -> None:
-        """G and H3 of the new directions at every node: ONE call of ``forces`` with the fields +-s z."""
+        """G and H3 of the new directions at every node: ONE call of ``forces`` with the fields +-s z (several
+        calls, whole directions each, when the fields would exceed :data:`CALL_BYTES`)."""
         J, n = len(self.theta), self._n()
         for d in new:
             if self._last_g.get(d, 0) >= p:
                 self._g[d] = np.zeros((J, n))
             if self._last_h.get(d, 0) >= p:
                 self._h[d] = np.zeros((J, n))
+        per_call = max(1, CALL_BYTES // (16 * J * max(n, 1)))
+        for k in range(0, len(new), per_call):
+            self._evaluate_chunk(new[k:k + per_call], J, n)
+
+    def _evaluate_chunk(self, new: list[Direction], J: int, n: int) -> None:
         U = np.empty((2 * J * len(new), n))  # +s z rows first, then their negatives; the fields built in place
         rows = []  # (direction, node, s)
         for d in new:

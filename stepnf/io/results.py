@@ -4,7 +4,9 @@ The JSON document (``stepnf run --json``) holds at least ``modes`` (each with
 ``index``, ``label``, ``omega``, ``rho`` and ``methods``: ``nf``/``dnf``/``md``/
 ``smd`` -> ``{T, C, flags, ...}``) and ``counts`` (``force_evaluations``,
 ``linear_solves``, ``factorizations``), ``timings`` (stage -> seconds) and
-``memory`` (stage -> peak and current resident MiB at its end). The HDF5 file (root attributes
+``memory`` (stage -> peak and current resident MiB at its end); with ``[analysis.backbone]`` a mode has its
+``backbone`` block, with ``[analysis.forcing]`` its ``frc`` list (one entry per forcing level; empty with a
+``frc_reason`` when the master has none). The HDF5 file (root attributes
 ``format = "stepnf-run"``, ``format_version = 1``) is built in memory and
 written by :mod:`stepnf.io.atomic`, so a crash or a full disk never leaves a
 half-written file and never destroys the previous one.
@@ -43,6 +45,10 @@ class ModeResult:
     backbone: dict[str, Any] | None = None
     #: ``[analysis] transverse``: the share of the mode's kinetic energy in that direction (:mod:`stepnf.nf.gamma`)
     transverse_share: float | None = None
+    #: ``[analysis.forcing]``: one dict per forcing level (:meth:`stepnf.forced.frc.FRC.to_json`; None: not asked),
+    #: or an empty list and ``frc_reason`` (why the master has none: no usable backbone)
+    frc: list[dict[str, Any]] | None = None
+    frc_reason: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         out = {
@@ -60,6 +66,10 @@ class ModeResult:
         }
         if self.backbone is not None:
             out["backbone"] = json_safe(self.backbone)
+        if self.frc is not None:
+            out["frc"] = json_safe(self.frc)
+            if self.frc_reason is not None:
+                out["frc_reason"] = self.frc_reason
         return out
 
 
@@ -191,6 +201,10 @@ def write_hdf5(result: RunResult, path: str | Path, scene_text: str = "") -> Pat
                 g.attrs["backbone"] = json.dumps(json_safe(m.backbone), allow_nan=False)
                 if m.backbone.get("failed"):  # (also in the block) the DPIM of this master failed: why
                     g.attrs["backbone_failed"] = str(m.backbone.get("failed_reason", ""))
+            if m.frc is not None:  # the forced responses (their curves also in arrays frc_<p>_<i>_*)
+                g.attrs["frc"] = json.dumps(json_safe(m.frc), allow_nan=False)
+                if m.frc_reason is not None:
+                    g.attrs["frc_reason"] = m.frc_reason
         arr = f.create_group("arrays")
         for k, v in result.arrays.items():
             arr.create_dataset(k, data=np.asarray(v), compression="gzip" if np.asarray(v).size > 1000 else None)

@@ -24,13 +24,18 @@ A semi-definite M (reduced integration, massless dofs) has infinite eigenvalues:
 then solves the pencil ``(M, K - sigma M)`` and drops them, saying how many (``massless``,
 ``solver``); shift-invert Lanczos never reaches them.
 
+The low modes are refined (:mod:`stepnf.linalg.refined_modes`: a shift-inverted Rayleigh-Ritz step whose solve
+sees K and M apart) on the dense path, and on the sparse path when its shift lies beyond lambda_1 (a stiff model):
+their frequencies then carry the round-off of the model's matrices, not that of ``eigh`` (which depends on the
+BLAS thread count) or of the entries of ``K - sigma M``.
+
 Degenerate groups (e.g. the sine and cosine companions of a (k, n) shell mode)
 are runs of elastic modes whose frequencies agree to ``degeneracy_tolerance``
 (relative).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
@@ -43,6 +48,7 @@ from stepnf.errors import NumericalError
 from stepnf.linalg.factorization import DENSE_LIMIT, matrix_diagonal
 from stepnf.linalg.null_space import (dense_modes, rigid_body_fields, rigid_field_count, rigid_indices,
                                       rigid_modes_from, rigid_span)
+from stepnf.linalg.refined_modes import far_shift, refined_count, refined_dense_modes, refined_modes, refinement_shift
 from stepnf.linalg.shifted import ShiftedFactorizer
 
 
@@ -191,6 +197,7 @@ def modal_analysis(
     n_rb = None  # rigid motions K does not resist, when the dof geometry gives them
     if rigid_candidates is not None and rigid_modes is None:
         n_rb = rigid_field_count(K, rigid_span(rigid_candidates))
+    need = max(int(n_modes or 1), 1)
     if n <= dense_limit and eigensolver is None:
         lam, vec, massless = dense_modes(K, M, scale, rigid_tolerance)
         if counters is not None:
@@ -200,9 +207,12 @@ def modal_analysis(
             progress(f"eigen-solve: M is singular: {massless} directions without mass (infinite eigenvalues) dropped")
         basis = _split(lam, vec, K, M, scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, True, solver, n_rb)
         basis.massless = massless
-        return basis
+        # the modes the run uses, as many as the sparse path's first batch (and those below min_omega)
+        m = refined_count(basis.omega, _first_size(need, first_batch, 0, max_modes), min_omega,
+                          basis.degenerate_groups)
+        omega, phi = refined_dense_modes(K, M, basis.omega, basis.phi, basis.rigid, m)
+        return _refined(basis, omega, phi, m, M, degeneracy_tolerance)
 
-    need = max(int(n_modes or 1), 1)
     if eigensolver is not None:
         return _adapter_modes(eigensolver, K, M, n_rb, need, _first_size(need, first_batch, rigid_modes, max_modes),
                               scale, rigid_tolerance, rigid_modes, degeneracy_tolerance, min_omega, enough, max_modes,
@@ -213,7 +223,8 @@ def modal_analysis(
     if rigid_candidates is not None and rigid_modes is None:
         R = rigid_modes_from(K, M, rigid_candidates, scale, rigid_tolerance, n_rb)
     # on the union pattern of K and M, shared with them: no copy of the indices, no sparse sum kept
-    fac = ShiftedFactorizer(K, M, counters=counters, backend=backend).factorizer(sigma, "K - sigma M (eigen-solve)")
+    shifter = ShiftedFactorizer(K, M, counters=counters, backend=backend)
+    fac = shifter.factorizer(sigma, "K - sigma M (eigen-solve)")
     k = _first_size(need, first_batch, rigid_modes if R is None else 0, max_modes)  # R known: no room for it
     k = min(k, n - 2 - (R.shape[1] if R is not None else 0))
     if progress:
@@ -224,14 +235,44 @@ def modal_analysis(
     if counters is not None:
         counters.eigensolver_solves += calls[0]
     basis.factorization, basis.shift = fac, sigma
+    refine = basis.n_elastic > 0 and far_shift(sigma, float(basis.omega[0]) ** 2)
+    if refine:  # a stiff model: the later batches and the refinement on K - s M, s near lambda_1
+        s_ref = refinement_shift(float(basis.omega[0]) ** 2)
+        try:
+            basis.factorization = shifter.factorizer(s_ref, "K - s M (refined eigen-solve)")
+        except NumericalError:  # K - s M singular in floating point (s below K's round-off): not refined
+            refine = False
+    if refine:
+        basis.shift = s_ref
+        fac.release()
+        if progress:
+            progress(f"eigen-solve: shift {sigma:.3g} beyond lambda_1 = {basis.omega[0] ** 2:.3g}: modes refined "
+                     f"at {basis.shift:.3g}")
     while True:
         room = min(max_modes - basis.n_elastic, n - 2 - basis.n_elastic - basis.rigid.shape[1])
         if room <= 0 or _satisfied(basis, need, min_omega, enough):
-            return basis
+            if not refine:
+                return basis
+            try:
+                omega, phi = refined_modes(K, M, basis.omega, basis.phi, basis.rigid, basis.n_elastic, basis.shift,
+                                           basis.factorization, counters)
+            except NumericalError as exc:  # K - s M nearly singular: the Lanczos modes, said so
+                if progress:
+                    progress(f"eigen-solve: modes not refined ({exc})")
+                return replace(basis, solver=f"{basis.solver}, not refined")
+            return _refined(basis, omega, phi, basis.n_elastic, M, degeneracy_tolerance, f"{basis.solver}, refined")
         more = min(extension_size(basis.n_elastic, need), room)
         if progress:
             progress(f"eigen-solve: {more} more modes of a {n}-dof model ({basis.n_elastic} found)")
         basis = extend_basis(K, M, basis, more, counters=counters, degeneracy_tolerance=degeneracy_tolerance)
+
+
+def _refined(basis: ModalBasis, omega: np.ndarray, phi: np.ndarray, m: int, M, degeneracy_tolerance: float,
+             solver: str | None = None) -> ModalBasis:
+    """``basis`` with the modes of :mod:`stepnf.linalg.refined_modes` (the first ``m`` refined, signs fixed)."""
+    phi[:, :m] = _normalise(phi[:, :m], M)
+    return replace(basis, omega=omega, phi=phi, degenerate_groups=degenerate_groups(omega, degeneracy_tolerance),
+                   solver=basis.solver if solver is None else solver)
 
 
 def extend_basis(K: sp.spmatrix, M: sp.spmatrix, basis: ModalBasis, more: int, *, counters: Counters | None = None,

@@ -41,6 +41,12 @@ KEY = "analysis.backbone.manifolds"
 #: system the run's 64-field chunks cost 7447 checkpoint writes, 20 of the stage's 43 s (fsync); on a model of
 #: 131k dofs or more a chunk stays the run's.
 CHUNK_BYTES = 8 * 2 ** 20
+#: Models up to this many dofs keep every shifted factorisation of a manifold to the end of its run (as the
+#: single-mode backbone, :data:`stepnf.pipeline.backbone.KEEP_FACTORISATIONS_UP_TO`); larger ones keep the
+#: :data:`LIVE_FACTORISATIONS` most recently used: a two-mode manifold of the 38k-dof cap meets ~30 shifts by
+#: order 5 (~220 MB each), and keeping them all ran this 24 GB machine out of memory.
+KEEP_ALL_FACTORISATIONS_UP_TO = 5000
+LIVE_FACTORISATIONS = 2
 
 
 def chunked(forces: Any, n: int) -> Any:
@@ -63,15 +69,14 @@ class ManifoldPlan:
     why: str
 
 
-def _resolve_set(state: StageView, i: int, group: tuple) -> list[int]:
-    """The computed modes a scene's set names (a SceneError naming ``manifolds[i][j]`` otherwise)."""
+def _resolve_set(scene: Any, labels: list, n: int, i: int, group: tuple) -> list[int]:
+    """The modes (of ``n`` with ``labels``) a scene's set names (a SceneError naming ``manifolds[i][j]`` otherwise)."""
     out = []
     for j, entry in enumerate(group):
         try:
-            scene = _with_masters(state.scene, [entry])
-            [s] = resolve_masters(scene, state.labels, state.basis.n_elastic, complete=True)
+            [s] = resolve_masters(_with_masters(scene, [entry]), labels, n, complete=True)
         except SceneError as exc:
-            raise SceneError(state.scene.file, f"{KEY}[{i}][{j}]", exc.message.replace(
+            raise SceneError(scene.file, f"{KEY}[{i}][{j}]", exc.message.replace(
                 "give a 0-based mode index", "give a 0-based mode index in the manifold")) from None
         out.append(int(s))
     return out
@@ -82,19 +87,25 @@ def _with_masters(scene: Any, masters: list) -> Any:
 
 
 def explicit_plans(state: StageView, spec: Any) -> list[ManifoldPlan]:
-    """The scene's sets resolved (unknown mode, a mode named twice, a set holding no master: SceneError)."""
+    """The scene's sets resolved among the computed modes (:func:`explicit_sets`)."""
+    return explicit_sets(state.scene, state.labels, state.basis.n_elastic, list(state.masters), spec)
+
+
+def explicit_sets(scene: Any, labels: list, n: int, masters: list[int], spec: Any) -> list[ManifoldPlan]:
+    """The scene's sets resolved among ``n`` modes of ``labels`` (unknown mode, a mode named twice, a set holding
+    none of ``masters``: SceneError)."""
     plans, owner = [], {}
     for i, group in enumerate(spec.manifolds):
-        modes = _resolve_set(state, i, group)
+        modes = _resolve_set(scene, labels, n, i, group)
         for j, s in enumerate(modes):
             if s in owner:
-                raise SceneError(state.scene.file, f"{KEY}[{i}][{j}]",
+                raise SceneError(scene.file, f"{KEY}[{i}][{j}]",
                                  f"{group[j]!r} is mode {s}, already in manifold {owner[s]} ({KEY}[{owner[s]}]): a "
                                  "mode belongs to one manifold at most")
             owner[s] = i
-        if not set(modes) & set(state.masters):
-            raise SceneError(state.scene.file, f"{KEY}[{i}]", f"the manifold of modes {modes} holds no master mode "
-                             f"(master_modes resolve to {list(state.masters)}): its backbones would not be reported")
+        if not set(modes) & set(masters):
+            raise SceneError(scene.file, f"{KEY}[{i}]", f"the manifold of modes {modes} holds no master mode "
+                             f"(master_modes resolve to {list(masters)}): its backbones would not be reported")
         k = spec.ratios[i] if spec.ratios is not None else None
         order = np.argsort(modes)
         plans.append(ManifoldPlan(tuple(int(modes[o]) for o in order),
@@ -110,14 +121,27 @@ def auto_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
     fits MAX_MODES, else the later master keeps the modes no earlier set holds (module docstring). A master with
     no such mode keeps its single-mode backbone (one :class:`~stepnf.errors.ModelWarning` when no master has one:
     "auto" looked and found nothing)."""
-    sets: list[tuple[set[int], dict[int, str]]] = []  # (modes, {mode: why it joined})
-    for p in state.masters:
+    def flags_of(p: int) -> list[dict] | None:
         twin_index = state.basis.twins(p)
         try:
-            flags = resonance_flags(state.K, state.M, float(state.omega[p]), spec.order, state.omega, p,
-                                    state.phi[:, twin_index] if twin_index else None, twin_index or None, tol,
-                                    state.scene.degeneracy_tolerance)
+            return resonance_flags(state.K, state.M, float(state.omega[p]), spec.order, state.omega, p,
+                                   state.phi[:, twin_index] if twin_index else None, twin_index or None, tol,
+                                   state.scene.degeneracy_tolerance)
         except NumericalError:  # an undeclared twin: the single-mode path says so
+            return None
+    return auto_sets(list(state.masters), np.asarray(state.omega, dtype=float), flags_of, spec, tol,
+                     state.basis.complete)
+
+
+def auto_sets(masters: list[int], omega: np.ndarray, flags_of: Any, spec: Any, tol: float, complete: bool,
+              together: Any = None) -> list[ManifoldPlan]:
+    """:func:`auto_plans` of ``masters`` from their resonance flags ``flags_of(p)`` (None: no set for p) among the
+    modes of angular frequencies ``omega``; ``complete``: whether those are every mode of the model;
+    ``together(modes)``: whether one manifold can hold the modes (None: any)."""
+    sets: list[tuple[set[int], dict[int, str]]] = []  # (modes, {mode: why it joined})
+    for p in masters:
+        flags = flags_of(p)
+        if flags is None:
             continue
         near = sorted((abs(f["ratio"] - f["harmonic"]) / f["harmonic"], int(f["mode"]), int(f["harmonic"]))
                       for f in flags if str(f.get("kind", "")).startswith("internal_resonance_1_")
@@ -125,10 +149,10 @@ def auto_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
         if not near:
             continue
         group = {int(p)} | {m for _, m, _ in near}
-        why = {m: f"mode {m} near {h} x w of mode {p} (w_s/w_p = {float(state.omega[m] / state.omega[p]):.4f})"
+        why = {m: f"mode {m} near {h} x w of mode {p} (w_s/w_p = {float(omega[m] / omega[p]):.4f})"
                for _, m, h in near}
         for other in [g for g in sets if g[0] & group]:
-            if _mergeable(state, other[0], group, tol):
+            if _mergeable(omega, other[0], group, tol) and (together is None or together(other[0] | group)):
                 sets.remove(other)
                 group |= other[0]
                 why = {**other[1], **why}
@@ -138,21 +162,26 @@ def auto_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
         if int(p) in group and len(group) > 1:
             sets.append((group, why))
     if not sets:
+        top = float(np.max(omega)) if len(omega) else 0.0
+        short = [] if complete else [int(p) for p in masters
+                                     if top < min(int(spec.order), MAX_RATIO) * float(omega[p])]
+        seen = (f"; the computed modes reach {top / float(omega[short[0]]):.3g} x w of mode {short[0]} only "
+                f"(raise [analysis] max_modes to look further)") if short else ""
         warnings.warn(f"[analysis.backbone] manifolds = \"auto\": no master has a mode near 1:1 .. 1:{MAX_RATIO} of "
-                      f"it within the resonance tolerance {tol:g}; every backbone is single-mode", ModelWarning,
-                      stacklevel=2)
+                      f"it within the resonance tolerance {tol:g} among the computed modes{seen}; every backbone is "
+                      "single-mode", ModelWarning, stacklevel=2)
     return [ManifoldPlan(tuple(sorted(group)), None, None, "auto",
                          "; ".join(why[m] for m in sorted(why)) + f" (resonance tolerance {tol:g})")
             for group, why in sets]
 
 
-def _mergeable(state: StageView, a: set[int], b: set[int], tol: float) -> bool:
+def _mergeable(omega: np.ndarray, a: set[int], b: set[int], tol: float) -> bool:
     """Whether the modes ``a | b`` can share one manifold: at most MAX_MODES, with a common ratio vector of
     integers up to MAX_RATIO within ``tol`` (what the reduced dynamics' branches need)."""
     modes = sorted(a | b)
     if len(modes) > MAX_MODES:
         return False
-    k = find_ratios(np.asarray(state.omega, dtype=float)[modes], tol, MAX_RATIO)
+    k = find_ratios(np.asarray(omega, dtype=float)[modes], tol, MAX_RATIO)
     return k is not None and int(k.max()) <= MAX_RATIO
 
 
@@ -178,21 +207,38 @@ def parametrise(state: StageView, plan: ManifoldPlan, spec: Any, forces: Any, pr
                  Solvers(backend=state.backend), state.counters,
                  DPIMTolerances(resonance=state.tol.resonance, twin=state.scene.degeneracy_tolerance,
                                 coupling=state.tol.coupling), rotations=rotation_mask(state.dirs))
+    return parametrise_plan(model, state.scene.file, plan, modes, state.phi[:, modes], state.omega[modes], spec,
+                            probe, lambda k: state.progress.bar(k - 1, spec.order - 1, f"DPIM manifold {modes}"),
+                            max_live=None if state.n <= KEEP_ALL_FACTORISATIONS_UP_TO else LIVE_FACTORISATIONS)
+
+
+def parametrise_plan(model: DPIM, file: Any, plan: ManifoldPlan, masters: list[int], phis: np.ndarray,
+                     omegas: np.ndarray, spec: Any, probe: float, progress: Any = None,
+                     max_live: int | None = None) -> ManifoldResult:
+    """:func:`~stepnf.dpim.multimode.manifold.parametrise_manifold` of ``plan`` (``masters``: the modes' indices in
+    ``model``'s spectrum), ratios that do not match the frequencies a SceneError on the scene's ``ratios[i]``."""
     try:
-        return parametrise_manifold(model, modes, state.phi[:, modes], state.omega[modes], spec.order, probe=probe,
-                                    ratios=plan.ratios, resonance=spec.resonance,
-                                    progress=lambda k: state.progress.bar(k - 1, spec.order - 1,
-                                                                          f"DPIM manifold {modes}"))
+        return parametrise_manifold(model, masters, phis, omegas, spec.order, probe=probe, ratios=plan.ratios,
+                                    resonance=spec.resonance, max_live=max_live, progress=progress)
     except ValueError as exc:  # ratios that do not match the frequencies
         if plan.index is None or plan.ratios is None:
             raise
-        raise SceneError(state.scene.file, f"analysis.backbone.ratios[{plan.index}]", str(exc)) from None
+        raise SceneError(file, f"analysis.backbone.ratios[{plan.index}]", str(exc)) from None
 
 
 def master_output(state: StageView, man: ManifoldResult, plan: ManifoldPlan, p: int, spec: Any, wmax: Any,
                   probe: float, fallback: float, stored_with: int) -> BackboneOutput:
     """Master ``p``'s branches on ``man``, its block and its arrays (the manifold's with them when
     ``stored_with`` is ``p``)."""
+    tol = state.tol.resonance if spec.resonance is None else float(spec.resonance)
+    return manifold_output(man, plan, p, spec, wmax, probe, fallback, stored_with, tol)
+
+
+def manifold_output(man: ManifoldResult, plan: ManifoldPlan, p: int, spec: Any, wmax: Any, probe: float,
+                    fallback: float, stored_with: int, tol: float) -> BackboneOutput:
+    """:func:`master_output` with the resonance tolerance ``tol`` the manifold was parametrised with (``man.masters``
+    and ``p``: the run's mode indices; ``wmax``: a :class:`~stepnf.dpim.backbone_report.WMax` with ``linear``, or
+    None)."""
     store = stored_with == p
     j = list(man.masters).index(p)
     linear = getattr(wmax, "linear", None)
@@ -202,7 +248,6 @@ def master_output(state: StageView, man: ManifoldResult, plan: ManifoldPlan, p: 
     branches = backbone_branches(man, j, top, r0=min(top, fallback) / 200.0, tol=spec.tolerance,
                                  transverse=linear, h=h)
     branches.sort(key=lambda b: not b.kind.startswith("continues mode"))
-    tol = state.tol.resonance if spec.resonance is None else float(spec.resonance)
     block = manifold_report(man, j, branches, spec, probe=probe, resonance=tol, transverse=linear, h=h,
                             chosen=plan.chosen, why=plan.why)
     block["manifold"]["stored_with"] = int(stored_with)

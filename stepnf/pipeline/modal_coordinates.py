@@ -10,7 +10,9 @@ by symmetry), so the backbone is that of the model's own truncation, an independ
 full-order one of a solver adapter. Same JSON block (:func:`stepnf.dpim.backbone_report.backbone_report`)
 and HDF5 arrays (``backbone_<p>_*``, fields over the modes listed in ``backbone_<p>_modes``) as the
 adapter path. ``A`` is the amplitude of the master's modal coordinate ``X_p`` (the model's own
-normalisation); ``W_max / h`` from the model's transverse field where it gives one.
+normalisation); ``W_max / h`` from the model's transverse field where it gives one. Masters in
+``[analysis.backbone] manifolds`` get the backbone of their manifold of several modes instead
+(:mod:`stepnf.pipeline.modal_manifolds`).
 """
 from __future__ import annotations
 
@@ -35,6 +37,7 @@ from stepnf.io.results import ModeResult, RunResult
 from stepnf.scene.parse import Scene
 from stepnf.pipeline.apply_method import modal_method
 from stepnf.pipeline.modal_forces import ModalSystem, modal_system
+from stepnf.pipeline.modal_manifolds import Subspaces, modal_manifold_backbone, modal_plans
 from stepnf.pipeline.outputs import BackboneOutput, Backbones, Evaluations, RunContext
 from stepnf.pipeline.results import scene_summary, with_backbones, write_results
 from stepnf.methods import FULL, MODAL, method
@@ -55,19 +58,32 @@ def modal_model_outputs(ctx: RunContext, model: ModalModel) -> tuple[ModalSpectr
     """Stages ``modes`` (frequencies, labels, masters), ``evaluators`` and ``backbone`` of a modal model, as
     the same :class:`Evaluations` and :class:`Backbones` as a solver adapter's run."""
     scene, progress, methods = ctx.scene, ctx.progress, ctx.methods
+    if scene.forcing is not None:  # (issue 34: forced responses from a solver adapter's M, K and forces)
+        raise SceneError(scene.file, "analysis.forcing", f"forced responses are not computed for the {scene.solver!r} "
+                         "model (modal coordinates) yet: remove [analysis.forcing] and [analysis.damping], or use a "
+                         "solver adapter")
     omega = np.asarray(model.omegas(), dtype=float)
     labels = list(model.labels())
     masters = resolve_masters(scene, labels, len(omega), complete=True)
     assert masters is not None
+    subspaces = Subspaces(model)
+    plans = modal_plans(scene, model, omega, labels, masters, subspaces)  # manifolds: checked before any solve
     scales = model.shell_scales()
     maxima = model.mode_maxima()
     with progress.stage("evaluators", "normal form and modal derivatives"):
         modes = [modal_mode(scene, model, p, omega, labels, methods, scales, maxima) for p in masters]
     backbones: dict[int, BackboneOutput] = {}
     if scene.backbone is not None:
+        member = {q: plan for plan in plans for q in plan.modes}
+        made: dict[tuple[int, ...], tuple] = {}
         with progress.stage("backbone", f"DPIM backbone to order {scene.backbone.order} in modal coordinates"):
             for rec in modes:
-                backbones[rec.index] = modal_backbone(scene, model, rec, labels)
+                if rec.index in member:  # on its manifold of several modes (stepnf.pipeline.modal_manifolds)
+                    plan = member[rec.index]
+                    backbones[rec.index] = modal_manifold_backbone(scene, model, plan, subspaces.holder(plan.modes),
+                                                                   made, rec.index, labels, progress)
+                else:
+                    backbones[rec.index] = modal_backbone(scene, model, rec, labels)
     return (ModalSpectrum(omega, labels, masters, model.describe()), Evaluations(modes, scales),
             Backbones(backbones))
 
@@ -128,10 +144,6 @@ def modal_backbone(scene: Scene, model: ModalModel, rec: ModeResult, labels: lis
     ``analysis.backbone`` (exit 2); ``w_over_h`` without its transverse field too.
     """
     spec, p = scene.backbone, rec.index
-    if spec.manifolds is not None:  # (issue 33: manifolds of several modes are parametrised from a solver's forces)
-        raise SceneError(scene.file, "analysis.backbone.manifolds", f"manifolds of several modes are not computed "
-                         f"for the {scene.solver!r} model (modal coordinates) yet: remove manifolds (and "
-                         "resonance, ratios) for its single-mode backbones, or use a solver adapter")
     system = modal_system(model, p)
     if system is None:
         raise SceneError(scene.file, "analysis.backbone", f"the {scene.solver!r} model gives only g^s_pp and "

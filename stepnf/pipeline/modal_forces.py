@@ -71,20 +71,36 @@ def modal_system(model: Any, p: int) -> ModalSystem | None:
     return VonKarmanForces(model, p).system()
 
 
+def modal_subspace(model: Any, p: int) -> np.ndarray | None:
+    """The global modes of :func:`modal_system`'s system of master ``p`` (for a sin master, its cos twin's),
+    without forming its forces; None when the model gives no forces."""
+    if callable(getattr(model, "internal_forces", None)):
+        return np.arange(len(model.omegas()))
+    if not callable(getattr(model, "galerkin", None)):
+        return None
+    return subspace(model.galerkin(), p)[2]
+
+
+def subspace(gd: Any, p: int) -> tuple[int, list[int], np.ndarray]:
+    """The von Karman shell's invariant subspace of master ``p`` (Galerkin data ``gd``; module docstring): its
+    cos master (``p``, or the cos twin of a sin ``p``), the nodal-diameter numbers ``k = j k_p`` it holds and its
+    global modes (the cos companions of those k, by k then n)."""
+    _, kp, _, _, j = gd.rows[p]
+    ks = [0] if kp == 0 else [k for k in range(0, gd.k_max + 1, kp)]
+    ks = [k for k in ks if k in gd.families]
+    index = np.asarray([gd.index[(k, i, "cos")] for k in ks for i in range(len(gd.families[k].omega))])
+    return int(gd.index[(kp, j, "cos")]), ks, index
+
+
 class VonKarmanForces:
     """The von Karman shell's modal forces over the invariant subspace of master ``p`` (module docstring)."""
 
     def __init__(self, model: Any, p: int):
         self.model = model
         self.data = gd = model.galerkin()
-        _, kp, _, comp, j = gd.rows[p]
-        self.kp = int(kp)
+        kp = self.kp = int(gd.rows[p][1])
         # the cos master (itself, or the cos twin of a sin master)
-        self.master = gd.index[(kp, j, "cos")]
-        ks = [0] if kp == 0 else [k for k in range(0, gd.k_max + 1, kp)]
-        self.ks = [k for k in ks if k in gd.families]
-        self.index = np.asarray([gd.index[(k, i, "cos")] for k in self.ks
-                                 for i in range(len(gd.families[k].omega))])
+        self.master, self.ks, self.index = subspace(gd, p)
         kb_top = 2 * max(self.ks)
         self.kbs = [0] if kp == 0 else [k for k in range(0, kb_top + 1, kp) if k in gd.airy_radial]
         self._tensors()
@@ -141,8 +157,9 @@ class VonKarmanForces:
         last: dict[bytes, np.ndarray] = {}
 
         def op(Y: np.ndarray) -> np.ndarray:  # the same coefficients come again at every rho: keep the last
-            Y = np.ascontiguousarray(Y, dtype=float)
-            key = Y.tobytes() + bytes(str(Y.shape), "ascii")
+            Y = np.ascontiguousarray(Y)  # real, or complex (a manifold's W[alpha]: Phi is real, so is linear)
+            Y = Y if np.iscomplexobj(Y) else Y.astype(float, copy=False)
+            key = Y.tobytes() + bytes(str(Y.shape) + Y.dtype.str, "ascii")
             if key not in last:
                 last.clear()
                 last[key] = Phi @ Y

@@ -3,11 +3,13 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 from typing import Callable
 
 from stepnf.linalg.deflation import ADMISSIBLE_MARGIN
 from stepnf.nf.diagnostics import conditioning_flags, soft_mode_flags
 from stepnf.errors import ModelWarning
+from stepnf.dpim.multimode.manifold import MAX_RATIO
 from stepnf.flags import new_flag
 from stepnf.linalg.modal_analysis import ModalBasis, lambda_scale, modal_analysis, orient_degenerate, probe_vector
 from stepnf.methods import DNF
@@ -99,14 +101,32 @@ def enough_modes(state: StageView, labels: ModeLabels) -> Callable[[ModalBasis],
     """Whether a partial basis holds every master mode and the modes just above the highest one."""
     scene, tol = state.scene, state.tol
 
+    spec = getattr(scene, "backbone", None)
+    named = [m for group in spec.manifolds for m in group] if spec is not None and isinstance(spec.manifolds, tuple) \
+        else []
+    wanted = replace(scene, master_modes=list(scene.master_modes) + [m for m in dict.fromkeys(named)
+                                                                       if isinstance(m, str) and m not in scene.master_modes])
+    reach = manifold_reach(scene)
+
     def enough(b: ModalBasis) -> bool:
-        labs = labels.of(b) if any(isinstance(x, str) for x in scene.master_modes) else [None] * b.n_elastic
-        ms = resolve_masters(scene, labs, b.n_elastic, complete=False)
+        labs = labels.of(b) if any(isinstance(x, str) for x in wanted.master_modes) else [None] * b.n_elastic
+        ms = resolve_masters(wanted, labs, b.n_elastic, complete=False)
         if ms is None:
             return False
         # the 1:1 checks need the modes just above the highest master (1:2 is checked locally)
-        return b.complete or b.omega[-1] >= (1 + tol.resonance) * max(b.omega[i] for i in ms)
+        return b.complete or b.omega[-1] >= (1 + tol.resonance) * reach * max(b.omega[i] for i in ms)
     return enough
+
+
+def manifold_reach(scene) -> float:
+    """How far above the highest master the spectrum must reach: 1 (the modes just above it), or with
+    ``[analysis.backbone] manifolds = "auto"`` ``min(N, MAX_RATIO)``, since "auto" builds each manifold from the
+    modes the resonance flags find near ``h w_p``, h = 1..min(N, 4), among the COMPUTED modes (a 38k-dof cap whose
+    first solve stops at 1.22 w_p of (2,1) would otherwise find no 1:2 partner and say there is none)."""
+    spec = getattr(scene, "backbone", None)
+    if spec is None or spec.manifolds != "auto":
+        return 1.0
+    return float(min(int(spec.order), MAX_RATIO))
 
 
 def modes_stage(ctx: RunContext, model: RunModel) -> RunModes:

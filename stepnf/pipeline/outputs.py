@@ -4,10 +4,13 @@
 
     model = model_stage(ctx, adapter)                          # RunModel
     backbone_check_stage(ctx, model)                           # refuses a backbone the model cannot give
+    loaded = forcing_check_stage(ctx, model)                   # the dofs of [analysis.forcing] load
     modes = modes_stage(ctx, model)                            # RunModes
+    damping_check_stage(ctx, modes)                            # refuses an overdamped master
     terms = step_stage(ctx, model, modes)                      # StepTerms
     evals = evaluators_stage(ctx, model, modes, terms)         # Evaluations
     bbs = backbone_stage(ctx, model, modes, terms, evals)      # Backbones
+    bbs = forced_stage(ctx, model, modes, evals, bbs, loaded)  # Backbones with the forced responses
     facts = output_mesh_stage(ctx, model)                      # AdapterFacts
 
 and, once the adapter is closed, ``results_stage(ctx, model, modes, terms, evals, bbs, facts)``.
@@ -189,9 +192,12 @@ class BackboneOutput:
 
 @dataclass(frozen=True)
 class Backbones:
-    """Stage ``backbone``: master -> :class:`BackboneOutput` (empty without ``[analysis.backbone]``)."""
+    """Stage ``backbone``: master -> :class:`BackboneOutput` (empty without ``[analysis.backbone]``); stage
+    ``forced`` adds ``forced``: master -> :class:`stepnf.pipeline.forced.ForcedOutput` (empty without
+    ``[analysis.forcing]``)."""
 
     by_master: dict[int, BackboneOutput] = field(default_factory=dict)
+    forced: dict[int, Any] = field(default_factory=dict)
 
     @property
     def results(self) -> dict[int, Any]:

@@ -17,6 +17,7 @@ import numpy as np
 from stepnf.flags import new_flag
 from stepnf.nf.gamma import NO_AMPLITUDE, share_flag, transverse_share
 from stepnf.io.results import ModeResult, RunResult, write_hdf5
+from stepnf.pipeline.forced import with_forced
 from stepnf.pipeline.outputs import (AdapterFacts, Backbones, Evaluations, RunContext, RunModel, RunModes,
                                      StepTerms)
 from stepnf.runtime.progress import memory_now
@@ -51,7 +52,8 @@ def field_arrays(model: RunModel, modes: RunModes, facts: AdapterFacts) -> dict[
 
 def run_arrays(modes: RunModes, terms: StepTerms, evals: Evaluations, backbones: Backbones) -> dict[str, np.ndarray]:
     """The arrays of the results file from the stages' outputs, in the order the stages made them:
-    ``omega``, ``master_modes``; ``g``, ``h``, ``full_modes`` (full STEP); ``Gv_<p>``; ``backbone_<p>_*``."""
+    ``omega``, ``master_modes``; ``g``, ``h``, ``full_modes`` (full STEP); ``Gv_<p>``; ``backbone_<p>_*``;
+    ``frc_<p>_<i>_*`` (the forced responses)."""
     arrays = {"omega": modes.basis.omega, "master_modes": np.asarray(modes.masters)}
     if terms.full is not None:
         arrays["g"], arrays["h"], arrays["full_modes"] = terms.full.g, terms.full.h, terms.full_modes
@@ -59,6 +61,8 @@ def run_arrays(modes: RunModes, terms: StepTerms, evals: Evaluations, backbones:
         arrays[f"Gv_{p}"] = Gv
     for bb in backbones.by_master.values():
         arrays.update(bb.arrays)
+    for fo in backbones.forced.values():
+        arrays.update(fo.arrays)
     return arrays
 
 
@@ -125,7 +129,8 @@ def results_stage(ctx: RunContext, model: RunModel, modes: RunModes, terms: Step
                   backbones: Backbones, facts: AdapterFacts) -> RunResult:
     """The :class:`RunResult` of a solver adapter's run, from every stage's output (module docstring),
     written when ``ctx.writing`` (:func:`write_results`)."""
-    records = with_transverse_shares(with_backbones(evals.modes, backbones), model, modes, evals, ctx.scene.transverse)
+    records = with_transverse_shares(with_forced(with_backbones(evals.modes, backbones), backbones), model, modes, evals,
+                                     ctx.scene.transverse)
     flags = list(modes.flags) + list(terms.flags) + gamma_flags(records, evals.no_gamma)
     arrays = run_arrays(modes, terms, evals, backbones)
     arrays.update(field_arrays(model, modes, facts))

@@ -1,4 +1,4 @@
-"""Run a scene: model -> modal analysis -> STEP -> evaluators -> backbone -> results.
+"""Run a scene: model -> modal analysis -> STEP -> evaluators -> backbone -> forced responses -> results.
 
 Only what the scene asks for is computed: NF/DNF/MD/SMD of one master mode
 need the targeted STEP (two force evaluations, four with the amplitude check),
@@ -21,6 +21,7 @@ from stepnf.io.results import RunResult
 from stepnf.methods import MODAL
 from stepnf.pipeline.backbone import backbone_check_stage, backbone_stage
 from stepnf.pipeline.evaluate import evaluators_stage
+from stepnf.pipeline.forced import damping_check_stage, forced_stage, forcing_check_stage
 from stepnf.pipeline.modal_coordinates import modal_model_outputs, modal_results
 from stepnf.pipeline.model import model_stage, open_model
 from stepnf.pipeline.modes import modes_stage
@@ -79,7 +80,7 @@ def output_names(name: str) -> list[str]:
     from stepnf.io.fields import FIELD_SUFFIXES
 
     return [f"{name}.h5", f".{name}.partial", *(f"{name}_fields{s}" for s in FIELD_SUFFIXES),
-            f"{name}_modes.png", f"{name}_backbone.png", f"{name}_branches.png"]
+            f"{name}_modes.png", f"{name}_backbone.png", f"{name}_branches.png", f"{name}_frc.png"]
 
 
 def _compute(scene: Scene, progress: Progress, writing: bool, started: float) -> RunResult:
@@ -117,10 +118,12 @@ def run_adapter(ctx: RunContext, adapter: SolverAdapter) -> tuple[RunModel, RunM
     stage (:func:`~stepnf.pipeline.results.results_stage`) takes them all, once the adapter is closed."""
     model = model_stage(ctx, adapter)
     backbone_check_stage(ctx, model)
+    loaded = forcing_check_stage(ctx, model)
     modes = modes_stage(ctx, model)
+    damping_check_stage(ctx, modes)
     terms = step_stage(ctx, model, modes)
     evals = evaluators_stage(ctx, model, modes, terms)
-    backbones = backbone_stage(ctx, model, modes, terms, evals)
+    backbones = forced_stage(ctx, model, modes, evals, backbone_stage(ctx, model, modes, terms, evals), loaded)
     facts = output_mesh_stage(ctx, model)
     return model, modes, terms, evals, backbones, facts
 

@@ -12,6 +12,7 @@ from typing import Any
 from stepnf.dpim.backbone_report import beyond_validity
 from stepnf.flags import NO_VALIDITY_REASONS
 from stepnf.io.results import RunResult, label_text
+from stepnf.report.frc_table import frc_lines
 
 #: Grid points shown per mode when the scene gives no list.
 SHOWN = 6
@@ -53,6 +54,7 @@ def backbone_lines(res: RunResult) -> list[str]:
                 line += "  beyond validity"
             out.append(line.rstrip())
         out += flag_lines(b.get("flags", []))
+        out += frc_lines(m)  # the peaks of its forced responses, if any
     return out
 
 

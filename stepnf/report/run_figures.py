@@ -1,5 +1,5 @@
-"""The figure files of a run (``[output] plot``): ``NAME_modes.png``, ``NAME_backbone.png`` and (masters on
-manifolds of several modes) ``NAME_branches.png``, drawn the same
+"""The figure files of a run (``[output] plot``): ``NAME_modes.png``, ``NAME_backbone.png``, (masters on
+manifolds of several modes) ``NAME_branches.png`` and (``[analysis.forcing]``) ``NAME_frc.png``, drawn the same
 way for ``stepnf run`` and ``stepnf.run(..., output=...)``.
 
 A figure that cannot be drawn (matplotlib missing, no memory left for it) or written (full disk) costs that
@@ -15,7 +15,7 @@ from stepnf.errors import OutputError
 from stepnf.runtime.limits import short_of_memory
 
 #: The figures of a run, in the order they are drawn.
-SUFFIXES = ("modes", "backbone", "branches")
+SUFFIXES = ("modes", "backbone", "branches", "frc")
 
 
 def draw_run_figures(scene: Any, result: Any) -> list[str]:
@@ -30,9 +30,11 @@ def draw_run_figures(scene: Any, result: Any) -> list[str]:
         try:  # the mode shapes (stepnf.report.mode_shapes), the DPIM backbones (stepnf.report.backbone_plot)
             from stepnf.report.backbone_plot import plot_backbones
             from stepnf.report.branches_plot import plot_branches
+            from stepnf.report.frc_plot import plot_frcs
             from stepnf.report.mode_shapes import plot_mode_shapes
 
-            draw = {"modes": plot_mode_shapes, "backbone": plot_backbones, "branches": plot_branches}[suffix]
+            draw = {"modes": plot_mode_shapes, "backbone": plot_backbones, "branches": plot_branches,
+                    "frc": plot_frcs}[suffix]
             path = draw(result, target)
             if path is not None:
                 result.extra_files.append(str(path))

@@ -32,7 +32,8 @@ units), ``relative_amplitude`` (fraction of the characteristic length),
 ``check`` (bool), ``check_ratio``, ``tolerance``, ``method`` ("forces" |
 "tangent": G and h from the solver's tangent stiffness, for solvers that
 offer it and print few digits); the table ``[analysis.backbone]`` (the DPIM
-backbone of every master mode, :mod:`stepnf.keys.backbone`). ``[output]``: ``dir``,
+backbone of every master mode, :mod:`stepnf.keys.backbone`); the tables ``[analysis.damping]`` and
+``[analysis.forcing]`` (the forced responses of the masters, :mod:`stepnf.keys.forced`). ``[output]``: ``dir``,
 ``name`` (file stem, default the scene's), ``hdf5`` (bool), ``plot`` (bool),
 ``fields`` (bool, default true: beside the results file ``NAME.h5``, the mesh
 with each master mode's shape and second-order fields for ParaView,
@@ -56,9 +57,11 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from stepnf.keys.backbone import BackboneSpec, parse_backbone
+from stepnf.keys.forced import check_forced_scene, parse_damping, parse_forcing
 from stepnf.keys.checks import (check_bool, check_choice, check_name, check_number, check_table, check_text, check_unknown,
                      describe_value, read_toml)
 from stepnf.errors import SceneError, UnknownSolverError, allowed
+from stepnf.forced.spec import DampingSpec, ForcingSpec, LoadSpec
 from stepnf.nf.evaluators import Tolerances
 from stepnf.linalg.factorization import BACKENDS
 from stepnf.methods import DEFAULT_METHODS, NAMES, ORDERS
@@ -69,7 +72,8 @@ METHODS = NAMES
 TOP_KEYS = ("model", "analysis", "output")
 ANALYSIS_KEYS = ("master_modes", "methods", "retained_modes", "qm_order", "tensors", "rigid_modes",
                  "rigid_tolerance", "degeneracy_tolerance", "resonance_tolerance", "coupling_tolerance",
-                 "linear_solver", "deflation", "max_modes", "thickness", "transverse", "step", "backbone")
+                 "linear_solver", "deflation", "max_modes", "thickness", "transverse", "step", "backbone",
+                 "damping", "forcing")
 STEP_KEYS = ("amplitude", "relative_amplitude", "check", "check_ratio", "tolerance", "method")
 OUTPUT_KEYS = ("dir", "name", "hdf5", "plot", "fields")
 _LABEL = re.compile(r"^\s*\(\s*(\d+)\s*,\s*(\d+)\s*\)\s*$")
@@ -103,6 +107,8 @@ class Scene:
     transverse: str | tuple[float, float, float] | None = None  # "ux"/"uy"/"uz" or a unit vector
     step: StepPolicy = field(default_factory=StepPolicy)
     backbone: BackboneSpec | None = None  # [analysis.backbone]: the DPIM backbone (None: not computed)
+    damping: DampingSpec | None = None  # [analysis.damping]: of the forced responses (stepnf.keys.forced)
+    forcing: ForcingSpec | None = None  # [analysis.forcing]: the forced responses (None: not computed)
     output_dir: Path = Path("results")
     output_name: str = "stepnf"
     write_hdf5: bool = True
@@ -187,10 +193,24 @@ def parse_scene(data: Mapping[str, Any], *, file: Path | None = None, base_dir: 
     _analysis(f, an, sc)
     sc.step = _step(f, an.get("step", {}))
     sc.backbone = parse_backbone(f, an["backbone"]) if "backbone" in an else None
+    _forced(f, an, sc)
     _output(f, data.get("output", {}), sc)
     if check_model:
         check_model_keys(sc)
     return sc
+
+
+def _forced(f, an: Mapping[str, Any], sc: Scene) -> None:
+    """``[analysis.damping]`` and ``[analysis.forcing]`` (:mod:`stepnf.keys.forced`): the forced responses."""
+    from stepnf.plugin.adapter import DIRECTIONS
+
+    if "damping" in an:
+        sc.damping = DampingSpec(**parse_damping(f, an["damping"], len(sc.master_modes)))
+    if "forcing" in an:
+        got = parse_forcing(f, an["forcing"], DIRECTIONS)
+        load = LoadSpec(**got["load"]) if got["load"] is not None else None
+        sc.forcing = ForcingSpec(got["modal"], load, got["frequency_range"], got["points"])
+    check_forced_scene(f, an, sc.backbone is not None)
 
 
 def check_model_keys(scene: Scene) -> dict[str, Any]:

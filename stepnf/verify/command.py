@@ -1,26 +1,23 @@
 """``stepnf verify SCENE``: the DPIM backbones against periodic orbits of the full model.
 
-For each master mode and a few amplitudes ``A`` of the master coordinate ``q = phi^T M x``
-(default: three, evenly up to the backbone's validity limit, capped at W_max/h = 2 with a thickness:
-:mod:`stepnf.verify.deflection`), the full model's orbit is computed
-independently of the parametrisation:
+For each master mode and a few amplitudes ``A`` of the master coordinate ``q = phi^T M x`` (default: three, evenly
+up to the backbone's validity limit, capped at W_max/h = 2 with a thickness: :mod:`stepnf.verify.deflection`), the
+full model's orbit is computed independently of the parametrisation (a master on a manifold of several modes: per
+branch, :mod:`stepnf.verify.manifold_orbits`):
 
-* **shooting** (:class:`stepnf.verify.periodic.Shooting`: Newton on the period and the initial state,
-  DOP853 with ``rtol = 1e-12``, or implicit Gauss-Legendre collocation of order 16 for a stiff model,
-  ``w_max / w`` above :data:`stepnf.verify.periodic.STIFF_RATIO`) for models up to :data:`SHOOTING_LIMIT`
-  dofs (the variational equations are n x n), started from the parametrisation's point at ``theta = 0``;
-* **time integration** (:mod:`stepnf.verify.integrate`: the energy-conserving scheme over ``periods``
-  periods at two step sizes, Richardson-extrapolated) from the parametrisation's point
-  ``(x, v)(theta = 0, rho(A))`` for larger models.
+* **shooting** (:class:`stepnf.verify.periodic.Shooting`: Newton on the period and the initial state, DOP853 with
+  ``rtol = 1e-12``, or implicit Gauss-Legendre collocation of order 16 for a stiff model, ``w_max / w`` above
+  :data:`stepnf.verify.periodic.STIFF_RATIO`) for models up to :data:`SHOOTING_LIMIT` dofs (the variational
+  equations are n x n), started from the parametrisation's point at ``theta = 0``;
+* **time integration** (:mod:`stepnf.verify.integrate`: the energy-conserving scheme over ``periods`` periods at two
+  step sizes, Richardson-extrapolated) from the parametrisation's point ``(x, v)(theta = 0, rho(A))`` for larger
+  models.
 
-Both report the orbit's frequency and amplitude, the backbone's frequency at that amplitude, and
-how far the orbit is from the manifold: at sampled states, ``(rho, theta)`` is the point of the
-parametrisation with the same master coordinate and rate (``phi^T M x = q``,
-``phi^T M v = q'``: two scalar equations, Newton), and the distance is the energy norm
-``sqrt(dx^T K dx + dv^T M dv)`` over ``sqrt(x^T K x + v^T M v)`` (relative), the largest over the orbit.
-
-Progress (:class:`stepnf.verify.clock.OrbitClock`, through ``progress``: stderr in ``stepnf verify``): before
-each orbit a line with the mode, the amplitude, ``orbit k of n``, the time elapsed and an estimate of the time left.
+Both report the orbit's frequency and amplitude, the backbone's at that amplitude, and the orbit's distance from the
+manifold: at sampled states, the point ``(rho, theta)`` of the parametrisation with the same ``q = phi^T M x`` and
+``q' = phi^T M v`` (Newton), energy norm ``sqrt(dx^T K dx + dv^T M dv) / sqrt(x^T K x + v^T M v)``, the largest.
+Then, with ``[analysis.forcing]``, each FRC's peak and folds (:mod:`stepnf.verify.forced_verify`). Progress (stderr,
+:class:`stepnf.verify.clock.OrbitClock`): before each orbit the mode, amplitude, ``k of n``, time elapsed and left.
 """
 from __future__ import annotations
 
@@ -35,7 +32,8 @@ from stepnf.errors import AdapterError, NumericalError, SceneError
 from stepnf.plugin.dofs import peak, translation_mask
 from stepnf.verify.clock import OrbitClock
 from stepnf.verify.deflection import cap_amplitudes
-from stepnf.verify.unverified import with_unverified
+from stepnf.verify.forced_verify import forced_checks, forced_failures, forced_lines
+from stepnf.verify.manifold_orbits import manifold_checks, manifold_lines
 
 #: Largest model (dofs) checked by shooting; larger ones by time integration.
 SHOOTING_LIMIT = 300
@@ -261,26 +259,25 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                  tangent: str = "auto", per_period: int | None = None) -> dict:
     """Run the scene's backbone (:func:`stepnf.pipeline.run.run_on_adapter`), then check every master mode.
 
-    Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``,
-    ``method``, ``modes`` (one entry per master: ``index``, ``label``, ``omega``, ``order``,
-    ``amplitudes_from``, ``checks``, one dict per amplitude, and ``failed``, one ``{amplitude, error}``
-    per orbit that could not be computed, when any; by shooting, ``integrator``, ``"implicit"`` or
-    ``"explicit"``, chosen for the master whatever its orbits do, and ``stiffness_ratio``, ``w_max / w``).
-    Without ``amplitudes``, each mode is
-    checked at the scene's amplitudes within its validity limit (:func:`scene_amplitudes`), else at
-    ``fractions`` of that limit (:func:`default_amplitudes`; the top capped at W_max/h = 2 with the scene's
-    thickness, :func:`stepnf.verify.deflection.cap_amplitudes`); ``rtol`` the
-    integration's frequency accuracy (:func:`stepnf.verify.integrate.measure`). A scene without
-    ``[analysis.backbone]`` or a bad amplitude is a :class:`SceneError`; a failed orbit is listed
-    under ``failed`` (:func:`failed_orbits`) and the other checks still run. ``integrator``: the
-    shooting's (:class:`stepnf.verify.periodic.Shooting`: ``"auto"`` implicit for a stiff model); ``progress``
-    gets a line before each orbit (:class:`OrbitClock`). ``tangent`` (``--tangent``, one of
-    :data:`stepnf.verify.integrate.JACOBIANS`): the time integration's Newton (``"auto"``: modified, then
-    the model's tangent, else a secant iteration and Newton-Krylov by directional differences of the
-    forces, :mod:`stepnf.verify.integrate`; ``"tangent"`` needs
-    a model that gives one; ``"differences"`` never asks the model's); the shooting uses the model's tangent
-    when there is one, else differences, whatever ``tangent``. ``per_period`` (``--steps-per-period``): steps
-    per period of the integration's coarse level (default from ``rtol``), or of the implicit shooting.
+    Returns the document printed by ``stepnf verify`` (``--json``): ``scene``, ``n_dofs``, ``method``, ``modes``
+    (one entry per master: ``index``, ``label``, ``omega``, ``order``, ``amplitudes_from``, ``checks``, one dict per
+    amplitude, and ``failed``, one ``{amplitude, error}`` per orbit that could not be computed, when any; by
+    shooting, ``integrator``, ``"implicit"`` or ``"explicit"``, chosen for the master whatever its orbits do, and
+    ``stiffness_ratio``, ``w_max / w``; a master on a manifold of several modes: per branch,
+    :func:`stepnf.verify.manifold_orbits.manifold_checks`). Without ``amplitudes``, each mode is checked at the
+    scene's amplitudes within its validity limit (:func:`scene_amplitudes`), else at ``fractions`` of that limit
+    (:func:`default_amplitudes`; the top capped at W_max/h = 2 with the scene's thickness,
+    :func:`stepnf.verify.deflection.cap_amplitudes`); ``rtol`` the integration's frequency accuracy
+    (:func:`stepnf.verify.integrate.measure`). A scene without ``[analysis.backbone]`` or a bad amplitude is a
+    :class:`SceneError`; a failed orbit is listed under ``failed`` (:func:`failed_orbits`) and the other checks
+    still run. ``integrator``: the shooting's (:class:`stepnf.verify.periodic.Shooting`: ``"auto"`` implicit for a
+    stiff model); ``progress`` gets a line before each orbit (:class:`OrbitClock`). ``tangent`` (``--tangent``, one
+    of :data:`stepnf.verify.integrate.JACOBIANS`): the time integration's Newton (``"auto"``: modified, then the
+    model's tangent, else a secant iteration and Newton-Krylov by directional differences of the forces,
+    :mod:`stepnf.verify.integrate`; ``"tangent"`` needs a model that gives one; ``"differences"`` never asks the
+    model's); the shooting uses the model's tangent when there is one, else differences, whatever ``tangent``.
+    ``per_period`` (``--steps-per-period``): steps per period of the integration's coarse level (default from
+    ``rtol``), or of the implicit shooting.
     """
     from stepnf.pipeline.model import is_modal_model, open_model
     from stepnf.pipeline.run import run_on_adapter
@@ -379,7 +376,10 @@ def verify_scene(scene: Any, *, amplitudes: Sequence[float] | None = None, perio
                     clock.stop()
                 entry["checks"].append(check_dict(chk, res.omega))
         clock.finish()
-        return with_unverified(doc, result, say)  # a master on a manifold: said not verified
+        doc = manifold_checks(doc, result, model, adapter, say, shooting=shooting, amplitudes=amplitudes,
+                              fractions=fractions, integrator=integrator, per_period=per_period, scene=scene,
+                              periods=periods, rtol=rtol, jacobian=jacobian)  # masters on manifolds, per branch
+        return forced_checks(doc, result, model, adapter, say, scene=scene, shooting=shooting)  # FRCs' peaks, folds
     finally:
         adapter.close()
 
@@ -398,9 +398,8 @@ def _label(label: Any) -> Any:
 
 
 def check_dict(c: Check, omega: float) -> dict:
-    """The JSON form of one check (frequencies as ratios to the linear ``omega`` and in rad/s;
-    ``max_displacement`` the largest displacement of the orbit's state at rest, W_max, length units, over the
-    translation dofs)."""
+    """The JSON form of one check (frequencies as ratios to the linear ``omega`` and in rad/s; ``max_displacement``
+    the largest displacement of the orbit's state at rest, W_max, length units, over the translation dofs)."""
     return {"amplitude": c.amplitude, "orbit_amplitude": c.orbit_amplitude,
             "omega_dpim": c.omega_dpim, "omega_check": c.omega_check,
             "omega_dpim_over_omega": c.omega_dpim / omega, "omega_check_over_omega": c.omega_check / omega,
@@ -410,8 +409,8 @@ def check_dict(c: Check, omega: float) -> dict:
 
 
 def failed_orbits(doc: dict) -> int:
-    """How many orbits of the document could not be computed (``modes[i].failed``)."""
-    return sum(len(m.get("failed", [])) for m in doc["modes"])
+    """How many orbits of the document could not be computed (``modes[i].failed``, failed forced solves)."""
+    return sum(len(m.get("failed", [])) for m in doc["modes"]) + forced_failures(doc)
 
 
 def format_report(doc: dict) -> str:
@@ -427,7 +426,7 @@ def format_report(doc: dict) -> str:
            f"{', DOP853 where w_max/w is small' if len(stiff) < len(works) else ''})" if doc["method"] == "shooting"
            else f"time integration over {doc['periods']:g} periods (energy-conserving, Richardson over 2 steps)")
     lines = [f"{doc['scene']}: {doc['n_dofs']} dofs; full-model orbits by {how}"]
-    for m in doc["modes"]:
+    for m in (m for m in doc["modes"] if "manifold" not in m):  # (masters on manifolds: below, per branch)
         lab = "" if m["label"] is None else f" {tuple(m['label']) if isinstance(m['label'], list) else m['label']}"
         lines.append(f"\nmaster mode {m['index']}{lab}: w = {m['omega']:.9g} rad/s, DPIM order {m['order']}, "
                      f"amplitudes from {m['amplitudes_from']}")
@@ -445,6 +444,7 @@ def format_report(doc: dict) -> str:
             lines.append(f"  {f['amplitude']:12.6g}  no orbit: {f['error']}")
         if not m["checks"] and not m.get("failed"):
             lines.append(f"  {m.get('not_verified') or 'no orbit checked (above: why)'}")
+    lines += [t for m in doc["modes"] if "manifold" in m for t in manifold_lines(m)]
     lines.append("\nA: amplitude of q = phi^T M x measured on the orbit; w_DPIM at that A; distance: largest "
                  "relative energy-norm distance of the orbit from the parametrisation")
-    return "\n".join(lines)
+    return "\n".join(lines + forced_lines(doc))

@@ -1,8 +1,9 @@
 """The masters ``stepnf verify`` does not check, said in its document rather than left out.
 
-A master on a manifold of several modes (``[analysis.backbone] manifolds``, issue 33) has no single-mode
-parametrisation to start the full model's orbits from: its branches are not compared with the full model
-yet. Its entry in the document has no checks and says so (``not_verified``).
+A master on a manifold of several modes (``[analysis.backbone] manifolds``, issue 33) is checked on its branches
+(:mod:`stepnf.verify.manifold_orbits`); one whose block names a manifold but keeps no branches (no
+``coupled_branches``: a run of an older stepnf) has nothing to start the full model's orbits from. Its entry in the
+document has no checks and says so (``not_verified``).
 """
 from __future__ import annotations
 
@@ -20,8 +21,7 @@ def with_unverified(doc: dict, result: Any, say: Callable[[str], None]) -> dict:
         if int(mode.index) in checked or not block.get("manifold"):
             continue
         why = (f"master mode {mode.index} is on the manifold of modes {block['manifold']['modes']}: NOT VERIFIED "
-               "(stepnf verify starts the full model's orbits from single-mode backbones only; its branches are "
-               "not compared with the full model)")
+               "(the run kept no branches of it to start the full model's orbits from)")
         say(why)
         label = mode.label
         doc["modes"].append({"index": int(mode.index), "label": list(label) if isinstance(label, tuple) else label,

@@ -89,8 +89,9 @@ def test_exact_one_two_resonance_is_na(tmp_path, capsys, exact):
         assert "softening" not in r[name] and "hardening" not in r[name]
         m = doc["modes"][0]["methods"][name]
         assert m["na"]["kind"] == "diverges" and re.search("1:2|twice its frequency", m["na"]["reason"])
-        assert m["behaviour"] == ("diverges" if exact else "hardening")
-        if exact:
+        # round-off: the refined eigen-solve (issue 35, stepnf.linalg.refined_modes) may find w2 = 2 w1 to the bit
+        assert m["behaviour"] == "diverges" if exact else m["behaviour"] in ("diverges", "hardening")
+        if m["behaviour"] == "diverges":
             assert m["T"] in ("-inf", "inf")  # kept, as a string: JSON has no infinity
         else:
             assert abs(m["T"]) > 1e10  # kept: the round-off divergence (measured 1.4e14)

@@ -199,7 +199,7 @@ def spectrum_of(dpim: DPIM) -> np.ndarray | None:
 
 def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.ndarray, omegas: np.ndarray,
                          order: int, *, probe: float, ratios: Sequence[int] | None = None,
-                         resonance: float | None = None,
+                         resonance: float | None = None, max_live: int | None = None,
                          progress: Callable[[int], None] | None = None) -> ManifoldResult:
     """The manifold of the masters ``phis`` (n, m), M-normalised, of angular frequencies ``omegas`` (m,), to odd
     ``order`` (module docstring).
@@ -209,7 +209,9 @@ def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.nda
     resonance vector k (m,) that decides the resonant monomials (None: a resonance of integers up to
     :data:`MAX_RATIO` the frequencies show within ``resonance`` decides the same way; without one the tolerance
     decides each small denominator, and k is found afterwards from the kept monomials if they fit one);
-    ``resonance``: that tolerance (None: ``dpim.tolerances.resonance``); ``progress(p)`` after each order.
+    ``resonance``: that tolerance (None: ``dpim.tolerances.resonance``); ``max_live``: at most this many shifted
+    factorisations alive at once (:class:`~stepnf.dpim.multimode.solves.ManifoldSolves`; None: all kept);
+    ``progress(p)`` after each order.
     """
     order = int(order)
     if order < 3 or order % 2 == 0:
@@ -246,7 +248,7 @@ def parametrise_manifold(dpim: DPIM, masters: Sequence[int] | None, phis: np.nda
     sampling = MonomialSampling(m, order)
     forcing = SampledForcing(dpim.forces, K, probe, sampling, dpim.rotations)
     solves = ManifoldSolves(K, M, Phi, masters, omega, dpim.solves, counters, R=dpim.spectrum.rigid,
-                            spectrum=spectrum, rigid_window=(tol * float(omega.min())) ** 2)
+                            spectrum=spectrum, rigid_window=(tol * float(omega.min())) ** 2, max_live=max_live)
     try:
         W, V, f, flags, counts = recursion(forcing, solves, counters, M, Phi, omega, masters, order, tol, k_given,
                                            spectrum, progress)

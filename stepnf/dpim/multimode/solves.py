@@ -2,7 +2,9 @@
 
 A monomial ``alpha`` of frequencies ``c = a - b`` has the real shift ``s = (sum_j c_j omega_j)^2 >= 0``
 (:mod:`stepnf.dpim.multimode.manifold`); every monomial of the same shift (any order) shares one factorisation,
-made when first needed and kept to the end of the run. Complex right-hand sides go as two real columns (n, 2k),
+made when first needed and kept to the end of the run, or, with ``max_live``, while it is among the ``max_live``
+most recently used ones (a large model: on the 38k-dof cap each MUMPS factorisation holds ~220 MB and a two-mode
+manifold at order 5 meets ~30 shifts; keeping them all took the 24 GB machine out of memory). Complex right-hand sides go as two real columns (n, 2k),
 the monomials of one shift and order in ONE call.
 
 ``bordered`` (positions of masters, resonant for this shift): the system is
@@ -48,11 +50,12 @@ class ManifoldSolves:
     is then bordered with ``M R`` as well, so that ``R^T M W = 0`` as at ``s = 0`` (the internal forces and the
     masters' inertia terms have no rigid part; without the border ``K - s M`` is nearly singular along R and the
     rounding of the solve, ``~ eps |K| / s``, came out as W of 1e6 at ``|d| = 1e-9``, review of issue 33).
+    ``max_live``: at most this many factorisations alive (least recently used freed first; None: all kept).
     """
 
     def __init__(self, K, M, Phi: np.ndarray, masters: Sequence[int], omega: np.ndarray, solvers: Solvers,
                  counters: Counters, *, R: np.ndarray | None = None, spectrum: np.ndarray | None = None,
-                 rigid_window: float = 0.0):
+                 rigid_window: float = 0.0, max_live: int | None = None):
         self.K, self.M = sp.csr_matrix(K), sp.csr_matrix(M)
         self.Phi = np.asarray(Phi, dtype=float)
         self.MPhi = np.asarray(self.M @ self.Phi)
@@ -62,18 +65,24 @@ class ManifoldSolves:
         self.MR = None if self.R is None else np.asarray(self.M @ self.R)
         self.rigid_window = float(rigid_window)
         self.spectrum = None if spectrum is None else np.asarray(spectrum, dtype=float)
-        self._cache: dict[tuple[float, tuple[int, ...]], Callable[[np.ndarray], np.ndarray]] = {}
-        self._factors: list[Any] = []
+        self._cache: dict[tuple[float, tuple[int, ...]], Callable[[np.ndarray], np.ndarray]] = {}  # LRU order
+        self._factors: dict[tuple[float, tuple[int, ...]], Any] = {}
+        self.max_live = None if max_live is None else max(int(max_live), 1)
         self._factory = solvers.factory
         self.shifts_factorised: list[float] = []
 
     def solve(self, s: float, bordered: tuple[int, ...], B: np.ndarray, where: str) -> np.ndarray:
         """``W`` (n, k) complex for right-hand sides ``B`` (n, k) complex; ``where`` names the monomials."""
         key = (shift_key(s), tuple(sorted(bordered)))
-        solver = self._cache.get(key)
+        solver = self._cache.pop(key, None)
         if solver is None:
-            solver = self._make(s, key[1], where)
-            self._cache[key] = solver
+            if self.max_live is not None:
+                while len(self._cache) >= self.max_live:
+                    old = next(iter(self._cache))
+                    del self._cache[old]
+                    release_all([self._factors.pop(old, None)])
+            solver = self._make(s, key[1], where, key)
+        self._cache[key] = solver  # the most recently used last
         k = B.shape[1]
         X = solver(np.concatenate([B.real, B.imag], axis=1))
         return X[:, :k] + 1j * X[:, k:]
@@ -81,9 +90,11 @@ class ManifoldSolves:
     def release(self) -> None:
         """Free every factorisation made here."""
         self._cache.clear()
-        release_all(self._factors)
+        release_all(list(self._factors.values()))
+        self._factors.clear()
 
-    def _make(self, s: float, bordered: tuple[int, ...], where: str) -> Callable[[np.ndarray], np.ndarray]:
+    def _make(self, s: float, bordered: tuple[int, ...], where: str,
+              key: tuple[float, tuple[int, ...]]) -> Callable[[np.ndarray], np.ndarray]:
         label = f"K - {s:.6g} M (DPIM manifold of modes {self.masters}{', bordered' if bordered else ''})"
         rigid = self.R is not None and 0.0 < s <= self.rigid_window
         try:
@@ -109,7 +120,7 @@ class ManifoldSolves:
         except NumericalError as exc:
             raise NumericalError(self._singular(s, bordered, where, exc)) from exc
         self.shifts_factorised.append(s)
-        self._factors.append(fac)
+        self._factors[key] = fac
         return solve
 
     def _singular(self, s: float, bordered: tuple[int, ...], where: str, exc: Exception) -> str:
