@@ -45,6 +45,7 @@ class Backbone:
         self.theta = np.linspace(0.0, np.pi, 64 * self.N + 1)
         self._cos = np.cos(np.outer(np.arange(self.N + 1), self.theta))  # (m, theta)
         self._transverse_kept: tuple | None = None  # (transverse, keys, parts) of _transverse_parts
+        self._sums_kept: tuple | None = None  # (parts, T3, sums) of _transverse_sums
         self._gram: tuple | None = None  # (keys, Y^T M Y) of shape_difference
 
     # ------------------------------------------------------------ frequency
@@ -57,16 +58,17 @@ class Backbone:
         return float(out) if out.ndim == 0 else out
 
     # ------------------------------------------------------------ amplitude
-    def _q_coef(self, rho: float) -> np.ndarray:
-        return (rho ** np.arange(self.N + 1))[:, None] * self.a  # (p, m)
-
     def amplitude(self, rho: float) -> float:
         """``A(rho) = (max q_p - min q_p) / 2`` over one period (module docstring)."""
-        cm = self._q_coef(rho).sum(axis=0)  # coefficient of cos(m theta)
+        cm = ((rho ** np.arange(self.N + 1))[:, None] * self.a).sum(axis=0)  # coefficient of cos(m theta)
         q = cm @ self._cos
         hi = _refine(cm, self.theta, int(np.argmax(q)), maximise=True)
         lo = _refine(cm, self.theta, int(np.argmin(q)), maximise=False)
         return 0.5 * (hi - lo)
+
+    def amplitudes(self, rho: np.ndarray) -> np.ndarray:
+        """:meth:`amplitude` at every ``rho`` (n,) (point by point: :func:`_refine` says why)."""
+        return np.asarray([self.amplitude(float(r)) for r in np.asarray(rho, dtype=float)]).reshape(-1)
 
     def rho_at(self, A: float) -> float:
         """The ``rho`` whose measured amplitude is ``A`` (NumericalError when A(rho) never reaches it)."""
@@ -93,27 +95,12 @@ class Backbone:
 
     # -------------------------------------------------------- W_max / h
     def w_max(self, rho: float, transverse: Transverse, h: float = 1.0) -> float:
-        """Largest transverse displacement over the period divided by ``h``.
+        """Largest transverse displacement over the period divided by ``h``: :meth:`w_max_many` at one point.
 
         ``transverse``: indices of the transverse dofs, or a callable mapping
-        displacement fields (n, k) to transverse displacements (t, k). Only
-        the transverse part of each coefficient is expanded over the phase
-        grid (t x 64N values), then the largest one is refined by Newton.
+        displacement fields (n, k) to transverse displacements (t, k).
         """
-        keys = list(self.res.Y)
-        Tc = self._transverse_parts(keys, transverse) * np.asarray([rho ** p for p, _ in keys])  # (t, terms)
-        C = np.zeros((Tc.shape[0], self.N + 1))  # coefficient of cos(m theta) per transverse dof
-        for j, (_, m) in enumerate(keys):
-            C[:, m] += Tc[:, j]
-        # only the dofs that can hold the peak are expanded over the grid: sum_m |C_im| bounds max |x_i(theta)|,
-        # and |x_i| at theta = 0 and pi is reached (on the 38k-dof cap: a few hundred of 13k transverse dofs, the
-        # FRCs' W_max/h at 400 points per curve 20 times faster; the same dof and value as expanding them all)
-        reached = max(float(np.abs(C.sum(axis=1)).max()), float(np.abs(C @ (-1.0) ** np.arange(self.N + 1)).max()))
-        rows = np.flatnonzero(np.abs(C).sum(axis=1) >= reached * (1.0 - 1e-12))  # (sums rounded differently)
-        Wt = C[rows] @ self._cos
-        i, j = np.unravel_index(int(np.argmax(np.abs(Wt))), Wt.shape)
-        sign = np.sign(Wt[i, j]) or 1.0
-        return _refine(sign * C[rows[i]], self.theta, int(j), maximise=True) / h
+        return float(self.w_max_many(np.array([rho], dtype=float), transverse, h)[0])
 
     def _transverse_parts(self, keys: list, transverse: Transverse) -> np.ndarray:
         """The transverse parts (t, terms) of the coefficients ``Y[k]``, ``k`` in ``keys``; kept for the
@@ -129,6 +116,62 @@ class Backbone:
     def w_max_at(self, A: float | Sequence[float], transverse: Transverse, h: float = 1.0) -> np.ndarray:
         """``W_max / h`` at the amplitudes ``A`` of ``q_p`` (see :meth:`w_max`)."""
         return np.asarray([self.w_max(self.rho_at(float(x)), transverse, h) for x in np.atleast_1d(A)])
+
+    def w_max_many(self, rho: np.ndarray, transverse: Transverse, h: float = 1.0) -> np.ndarray:
+        """``W_max / h`` at every ``rho`` (n,) at once: only the transverse dofs that can hold the peak are expanded
+        over the phase grid, then the largest value is refined by Newton (:func:`_refine`). ``sum_m |C_im|`` bounds
+        ``max |x_i(theta)|`` and ``|x_i|`` at theta = 0, pi is reached; the dofs whose looser bound ``sum_p |rho|^p
+        sum_m |T_ipm|`` reaches the largest of those are found for all points by one product with the ``(t, N + 1)``
+        sums, and only they get their ``C_im(rho)`` (on the 38k-dof cap: a few hundred of 13k transverse dofs).
+        Memory: about 2e6 values (16 MB) at a time."""
+        rho = np.asarray(rho, dtype=float)
+        T3, sums = self._transverse_sums(transverse)
+        t, G = T3.shape[0], self._cos.shape[1]
+        signs = (-1.0) ** np.arange(self.N + 1)
+        out = np.zeros(len(rho))  # 0 where rho = 0 (no field)
+        live = np.flatnonzero(rho != 0)
+        step = max(1, int(2e6 // max(1, 3 * t)))  # points per product
+        for k in (live[k0:k0 + step] for k0 in range(0, len(live), step)):
+            R = rho[k, None] ** np.arange(self.N + 1)
+            X, bound = R @ sums[:, : 2 * t], np.abs(R) @ sums[:, 2 * t:]
+            seen = np.abs(X).max(axis=1)
+            cand = np.flatnonzero((bound >= seen[:, None] * (1.0 - 1e-9)).any(axis=0))  # (+ round-off)
+            C = np.einsum("np,ipm->nim", R, T3[cand])  # (points, candidates, m)
+            reached = np.maximum(np.abs(C.sum(axis=2)).max(axis=1), np.abs(C @ signs).max(axis=1))
+            pt, row = np.nonzero(np.abs(C).sum(axis=2) >= reached[:, None] * (1.0 - 1e-12))  # w_max's rows
+            best, j, val = np.empty(len(pt)), np.empty(len(pt), dtype=int), np.empty(len(pt))
+            blk = max(1, int(2e6 // G))
+            for b0 in range(0, len(pt), blk):  # each (point, dof) expanded over the grid: its largest |x|
+                Wt = C[pt[b0:b0 + blk], row[b0:b0 + blk]] @ self._cos
+                jb = np.argmax(np.abs(Wt), axis=1)
+                j[b0:b0 + blk], val[b0:b0 + blk] = jb, Wt[np.arange(len(jb)), jb]
+                best[b0:b0 + blk] = np.abs(val[b0:b0 + blk])
+            top = np.full(len(k), -1.0)
+            np.maximum.at(top, pt, best)
+            first = np.flatnonzero(best == top[pt])
+            first = first[np.unique(pt[first], return_index=True)[1]]  # the first dof holding each point's max
+            sign = np.sign(val[first])
+            sign[sign == 0] = 1.0
+            out[k[pt[first]]] = [_refine(sg * C[p, r], self.theta, int(jj), maximise=True) / h
+                                 for sg, p, r, jj in zip(sign, pt[first], row[first], j[first])]
+        return out
+
+    def _transverse_sums(self, transverse: Transverse) -> tuple[np.ndarray, np.ndarray]:
+        """``(T3, sums)`` of :meth:`w_max_many`: the transverse parts as ``T3[i, p, m]`` and ``(N + 1, 3 t)`` sums
+        ``[sum_m T3, sum_m (-1)^m T3, sum_m |T3|]`` (x_i at theta = 0, pi, the bound); kept for the last
+        ``transverse``."""
+        keys = list(self.res.Y)
+        Tc = self._transverse_parts(keys, transverse)
+        kept = self._sums_kept
+        if kept is not None and kept[0] is Tc:
+            return kept[1], kept[2]
+        T3 = np.zeros((Tc.shape[0], self.N + 1, self.N + 1))
+        for j, (p, m) in enumerate(keys):
+            T3[:, p, m] += Tc[:, j]
+        sums = np.vstack([T3.sum(axis=2), (T3 * (-1.0) ** np.arange(self.N + 1)).sum(axis=2),
+                          np.abs(T3).sum(axis=2)]).T
+        self._sums_kept = (Tc, T3, sums)
+        return T3, sums
 
     # ---------------------------------------------------------- validity
     def shape_difference(self, rho: float) -> float:
@@ -205,6 +248,11 @@ def _refine(c: np.ndarray, grid: np.ndarray, i: int, *, maximise: bool) -> float
     Newton on ``f'`` (exact derivatives, quadratic convergence) from the grid point, kept within one
     grid spacing of it; the grid value is the answer when Newton leaves that interval or does worse
     (a flat or kinked extremum). About ten times cheaper than a bounded Brent search, to round-off.
+    One series at a time, also for many points (:meth:`Backbone.amplitudes`, :meth:`Backbone.w_max_many`):
+    A(rho) is called one point at a time inside Brent's method (:meth:`Backbone.rho_at`, ~1500 calls per
+    :meth:`Backbone.validity_limit`), where a form over arrays costs 2-3 times more per point (numpy's
+    per-call overhead on arrays of one row: the backbone stage of examples/beam/beam_fenicsx.toml twice as
+    long); over an FRC's points the loop costs ~55 us per point (1200 points: 0.09 s instead of 0.02 s).
     """
     ms = np.arange(len(c))
     mc, m2c = ms * c, ms * ms * c

@@ -37,24 +37,34 @@ from numpy.polynomial import Polynomial as P
 from stepnf.forced.damping import damped_frequency
 
 
+def manifold_grams(res: Any, C: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gram matrices ``(Y_i^T M Y_j, Y_i^T C Y_j)`` of the coefficients of ``res`` (keys sorted) and ``M phi``
+    (n,): what :class:`Averaged` needs of the model's matrices, the same for every forcing level (one product of
+    each matrix with the coefficients per master, not per level)."""
+    Ys = np.asarray([res.Y[k] for k in sorted(res.Y)])  # (k, n)
+    MY = np.asarray(res.M @ Ys.T).T
+    CY = np.asarray(C(Ys))
+    return Ys @ MY.T, Ys @ CY.T, np.asarray(res.M @ res.phi)
+
+
 class Averaged:
     """The averaged dynamics of the master of ``res`` under damping ``C`` and forcing ``F`` (module docstring).
 
     ``res``: a :class:`~stepnf.dpim.parametrisation.DPIMResult`; ``C(V)``: the damping product on fields
     (k, n) (:class:`stepnf.forced.damping.Damping`); ``xi``: the master's damping ratio (sets ``omega_d``);
-    ``F`` (n,): the force amplitude (model force units). ``I, D, f1, Od`` polynomials in ``rho``.
+    ``F`` (n,): the force amplitude (model force units); ``grams``: :func:`manifold_grams` of ``res`` and ``C``
+    when known (computed otherwise). ``I, D, f1, Od`` polynomials in ``rho``. The ``*_many`` methods take arrays of
+    steady states (an FRC's points at once); their one-point forms wrap them.
     """
 
-    def __init__(self, res: Any, C: Callable[[np.ndarray], np.ndarray], xi: float, F: np.ndarray):
+    def __init__(self, res: Any, C: Callable[[np.ndarray], np.ndarray], xi: float, F: np.ndarray,
+                 grams: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None):
         self.omega = float(res.omega)
         self.xi = float(xi)
         self.omega_d = damped_frequency(self.omega, self.xi)
         N = res.order
         keys = sorted(res.Y)
-        Ys = np.asarray([res.Y[k] for k in keys])  # (k, n)
-        MY = np.asarray(res.M @ Ys.T).T
-        CY = np.asarray(C(Ys))
-        GM, GC = Ys @ MY.T, Ys @ CY.T  # Gram matrices Y_i^T M Y_j, Y_i^T C Y_j
+        GM, GC, Mphi = grams if grams is not None else manifold_grams(res, C)  # Y_i^T M Y_j, Y_i^T C Y_j, M phi
         sm, sc = np.zeros(2 * N + 1), np.zeros(2 * N + 1)
         cmnc = np.zeros((N + 1, N + 1, 2 * N + 1))  # [m, n, k]: rho^k coefficient of X_m^T C X_n
         for i, (p, m) in enumerate(keys):
@@ -64,7 +74,6 @@ class Averaged:
                     sm[p + q] += m * m / 2.0 * GM[i, j]
                     sc[p + q] += m * m / 2.0 * GC[i, j]
         F = np.asarray(F, dtype=float)
-        Mphi = np.asarray(res.M @ res.phi)
         fmc, amc = np.zeros((N + 1, N + 1)), np.zeros((N + 1, N + 1))  # [m, p]: F^T Y[p, m], phi^T M Y[p, m]
         for (p, m), y in res.Y.items():
             fmc[m, p] += float(F @ y)
@@ -121,40 +130,61 @@ class Averaged:
         dgain = 0.5 * (self.ddf1(rho) * self.dI(rho) - self.df1(rho) * self.ddI(rho)) / self.dI(rho) ** 2
         return self.dOd(rho) + sign * (dgain * cabs - self.gain(rho) * s * ds / cabs)
 
-    def jacobian(self, rho: float, c: float) -> np.ndarray:
-        """The Jacobian (2, 2) of ``(I', psi')`` in ``(I, psi)`` at the steady state ``(rho, c = -cos psi)``."""
-        s = float(self.sin_psi(rho))
-        cos = -float(c)
-        dI = float(self.dI(rho))
-        f1, df1 = float(self.f1(rho)), float(self.df1(rho))
-        Od, dOd = float(self.Od(rho)), float(self.dOd(rho))
-        d_loss = (float(self.dD(rho)) * Od - float(self.D(rho)) * dOd) / (Od * Od)  # d(D/Omega_d)/drho
+    def jacobian(self, rho: float | np.ndarray, c: float | np.ndarray) -> np.ndarray:
+        """The Jacobian (2, 2) of ``(I', psi')`` in ``(I, psi)`` at the steady state ``(rho, c = -cos psi)``;
+        (..., 2, 2) for arrays ``rho``, ``c`` (elementwise: the same numbers as point by point)."""
+        rho, c = np.asarray(rho, dtype=float), np.asarray(c, dtype=float)
+        s = self.sin_psi(rho)
+        cos = -c
+        dI = self.dI(rho)
+        f1, df1 = self.f1(rho), self.df1(rho)
+        Od, dOd = self.Od(rho), self.dOd(rho)
+        d_loss = (self.dD(rho) * Od - self.D(rho) * dOd) / (Od * Od)  # d(D/Omega_d)/drho
         g = df1 / dI  # df1/dI
-        dg = (float(self.ddf1(rho)) * dI - df1 * float(self.ddI(rho))) / (dI * dI)  # d(df1/dI)/drho
-        return np.array([[(-d_loss - 0.5 * df1 * s) / dI, -0.5 * f1 * cos],
-                         [(dOd - 0.5 * dg * cos) / dI, 0.5 * g * s]])
+        dg = (self.ddf1(rho) * dI - df1 * self.ddI(rho)) / (dI * dI)  # d(df1/dI)/drho
+        J = np.empty(np.broadcast_shapes(rho.shape, c.shape) + (2, 2))
+        J[..., 0, 0], J[..., 0, 1] = (-d_loss - 0.5 * df1 * s) / dI, -0.5 * f1 * cos
+        J[..., 1, 0], J[..., 1, 1] = (dOd - 0.5 * dg * cos) / dI, 0.5 * g * s
+        return J
 
     def extremes(self, rho: float) -> tuple[float, float]:
-        """The phases ``(theta_max, theta_min)`` in [0, pi] of the extremes of ``q(theta) = sum_m a_m cos(m
-        theta)`` (``q`` is even: these are its extremes over the period), on a grid of 64 (N + 1) points then
-        Newton (a first-order shift of A needs them to O(grid spacing) only; refined for good measure)."""
+        """``(theta_max, theta_min)`` of :meth:`extremes_many` at one ``rho``."""
+        tmax, tmin = self.extremes_many(np.array([rho], dtype=float))
+        return float(tmax[0]), float(tmin[0])
+
+    def amplitude_shift(self, rho: float, c: float, theta_max: float, theta_min: float) -> float:
+        """:meth:`amplitude_shift_many` at one steady state ``(rho, c = -cos psi)``."""
+        one = lambda x: np.array([x], dtype=float)  # noqa: E731
+        return float(self.amplitude_shift_many(one(rho), one(c), one(theta_max), one(theta_min))[0])
+
+    def extremes_many(self, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The phases ``(theta_max, theta_min)`` (n,) each in [0, pi] of the extremes of ``q(theta) = sum_m a_m(rho)
+        cos(m theta)`` at every ``rho`` (n,) (``q`` is even: these are its extremes over the period), on a grid of
+        64 (N + 1) points then Newton, each point stopping on its own (a first-order shift of A needs them to
+        O(grid spacing) only; refined for good measure)."""
         ms = self._ms
-        a = self._amc @ rho ** ms
+        a = (np.asarray(rho, dtype=float)[:, None] ** ms) @ self._amc.T  # (n, m): a_m per point
         q = a @ self._cos
         out = []
-        for i in (int(np.argmax(q)), int(np.argmin(q))):
-            t = float(self._grid[i])
+        for i in (np.argmax(q, axis=1), np.argmin(q, axis=1)):
+            t = self._grid[i]
+            live = np.ones(len(t), dtype=bool)
             for _ in range(8):
-                d1, d2 = -float((ms * a) @ np.sin(ms * t)), -float((ms * ms * a) @ np.cos(ms * t))
-                if d2 == 0 or abs(d1 / d2) > self._grid[1]:
+                d1 = -np.einsum("nm,nm->n", ms * a, np.sin(np.outer(t, ms)))
+                d2 = -np.einsum("nm,nm->n", ms * ms * a, np.cos(np.outer(t, ms)))
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    step = d1 / d2
+                live &= (d2 != 0) & ~(np.abs(step) > self._grid[1])
+                if not live.any():
                     break
-                t -= d1 / d2
+                t = np.where(live, t - np.where(live, step, 0.0), t)
             out.append(t)
         return out[0], out[1]
 
-    def amplitude_shift(self, rho: float, c: float, theta_max: float, theta_min: float) -> float:
-        """First-order change of the measured amplitude ``A`` of ``q = phi^T M x`` on the forced steady state
-        ``(rho, c = -cos psi)``, whose ``q`` is extremal at ``theta_max``, ``theta_min`` on the manifold.
+    def amplitude_shift_many(self, rho: np.ndarray, c: np.ndarray, theta_max: np.ndarray,
+                             theta_min: np.ndarray) -> np.ndarray:
+        """First-order change of the measured amplitude ``A`` of ``q = phi^T M x`` on the forced steady states
+        ``(rho, c = -cos psi)`` (n,), whose ``q`` is extremal at ``theta_max``, ``theta_min`` (n,) on the manifold.
 
         Averaging removes the oscillating part of ``I'``; the near-identity change of variables that does it
         gives the action on the orbit ``I = I_bar + u(theta)``, ``u = (1/Omega_d) int (I' - mean) dtheta``:
@@ -166,27 +196,32 @@ class Averaged:
         exact ellipse ``x = a cos(Omega t - psi)`` seen from the circles of the free oscillator. With it the
         FRC's flanks are second order in the forcing; the peak (``cos psi = 0`` at theta = 0, pi) is unchanged.
         """
-        psi = float(np.arctan2(float(self.sin_psi(rho)), -c))
+        rho, c = np.asarray(rho, dtype=float), np.asarray(c, dtype=float)
+        psi = np.arctan2(self.sin_psi(rho), -c)[:, None]
         ms = self._ms
-        pw = rho ** np.arange(self._cmnc.shape[2])
-        fm = ms * (self._fmc @ pw[: len(ms)])  # m f_m
-        dam = self._damc @ pw[: len(ms)]  # d a_m / drho
-        v = self._mn * (self._cmnc @ pw)  # m n X_m^T C X_n
-        Od, dI = float(self.Od(rho)), float(self.dI(rho))
+        pw = rho[:, None] ** np.arange(self._cmnc.shape[2])  # (n, k)
+        fm = ms * (pw[:, : len(ms)] @ self._fmc.T)  # m f_m (n, m)
+        dam = pw[:, : len(ms)] @ self._damc.T  # d a_m / drho (n, m)
+        v = self._mn * np.einsum("mjk,nk->nmj", self._cmnc, pw)  # m j X_m^T C X_j (n, m, j)
+        Od, dI = self.Od(rho), self.dI(rho)
 
-        def u(theta: float) -> float:
-            forced = 0.5 * float(fm @ (np.cos((ms + 1) * theta - psi) * self._up
-                                       + np.cos((ms - 1) * theta + psi) * self._down))
-            damped = -0.5 * float(np.sum(v * (np.sin(self._dmn * theta) * self._inv_dmn
-                                              - np.sin(self._smn * theta) * self._inv_smn)))
+        def u(theta: np.ndarray) -> np.ndarray:
+            th = theta[:, None]
+            forced = 0.5 * np.sum(fm * (np.cos((ms + 1) * th - psi) * self._up
+                                        + np.cos((ms - 1) * th + psi) * self._down), axis=1)
+            th = th[:, :, None]
+            damped = -0.5 * np.sum(v * (np.sin(self._dmn * th) * self._inv_dmn
+                                        - np.sin(self._smn * th) * self._inv_smn), axis=(1, 2))
             return forced / Od + damped
 
-        def q_I(theta: float) -> float:
-            return float(dam @ np.cos(ms * theta)) / dI
+        def q_I(theta: np.ndarray) -> np.ndarray:
+            return np.sum(dam * np.cos(np.outer(theta, ms)), axis=1) / dI
 
         return 0.5 * (q_I(theta_max) * u(theta_max) - q_I(theta_min) * u(theta_min))
 
-    def stable(self, rho: float, c: float) -> bool:
-        """Asymptotically stable: trace < 0 and determinant > 0 (:meth:`jacobian`)."""
+    def stable(self, rho: float | np.ndarray, c: float | np.ndarray) -> bool | np.ndarray:
+        """Asymptotically stable: trace < 0 and determinant > 0 (:meth:`jacobian`; a bool array for arrays,
+        each determinant by LAPACK as for one point: the same sign at the folds, where it vanishes)."""
         J = self.jacobian(rho, c)
-        return bool(np.trace(J) < 0 and np.linalg.det(J) > 0)
+        out = (J[..., 0, 0] + J[..., 1, 1] < 0) & (np.linalg.det(J) > 0)
+        return bool(out) if out.ndim == 0 else out

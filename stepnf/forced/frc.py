@@ -17,7 +17,8 @@ Amplitudes are the backbone's measures (:class:`stepnf.dpim.backbone.Backbone`):
 modal coordinate ``q = phi^T M x`` and ``W_max / h``, ``A`` with the first-order shift of the averaging's
 change of variables (:meth:`stepnf.forced.averaged.Averaged.amplitude_shift`: it makes the flanks second
 order; zero at the peak); a point whose ``A`` exceeds the backbone's validity limit is marked
-``valid: False`` (the peak too).
+``valid: False`` (the peak too). A curve's points are measured all at once (the ``*_many`` methods, which the
+one-point forms used for the peak and the folds wrap).
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from scipy.optimize import brentq
 
 from stepnf.dpim.backbone import Backbone, Transverse
 from stepnf.errors import NumericalError, SceneError
-from stepnf.forced.averaged import Averaged
+from stepnf.forced.averaged import Averaged, manifold_grams
 from stepnf.forced.damping import Damping, damping_ratio
 
 #: Dense samples of the curve parameter, before clipping and resampling by arc length.
@@ -116,29 +117,32 @@ def forced_responses(res: Any, damping: Damping, levels: Sequence[tuple[dict[str
         valid_to, _ = bb.validity_limit(validity_tol)
     xi = damping_ratio(damping.spec, res.omega, master)
     out = []
+    grams = manifold_grams(res, damping)  # the same for every level
     for level, value in levels:
-        F, proj = force_vector(res, value, level)
-        av = Averaged(res, damping, xi, F)
+        F, proj = force_vector(res, value, level, Mphi=grams[2])
+        av = Averaged(res, damping, xi, F, grams)
         out.append(_one_level(av, bb, level, proj, (lo, hi), valid_to, transverse, h, int(points), who))
     return out
 
 
-def force_vector(res: Any, value: Any, level: dict[str, Any]) -> tuple[np.ndarray, float]:
+def force_vector(res: Any, value: Any, level: dict[str, Any], *,
+                 Mphi: np.ndarray | None = None) -> tuple[np.ndarray, float]:
     """``(F, phi^T F)``: the force amplitude (n,) of one level, turned to excite the master with
     ``phi^T F > 0`` (a sign of F is a phase of pi: the same response), and its modal force as given.
-    SceneError when it is zero, not finite or does not excite the master."""
+    SceneError when it is zero, not finite or does not excite the master. ``Mphi``: ``M phi`` when known."""
+    Mphi = np.asarray(res.M @ res.phi, dtype=float) if Mphi is None else np.asarray(Mphi, dtype=float)
     key = "analysis.forcing.modal" if np.ndim(value) == 0 else "analysis.forcing.load"
     if np.ndim(value) == 0:
         k = float(value)
         if not np.isfinite(k) or k == 0.0:
             raise SceneError(None, key, f"a forcing level kappa must be a finite nonzero number; got {value}")
-        F = k * np.asarray(res.M @ res.phi, dtype=float)
+        F = k * Mphi
     else:
         F = np.asarray(value, dtype=float)
         if F.shape != res.phi.shape or not np.all(np.isfinite(F)):
             raise SceneError(None, key, f"the force must be {res.phi.shape[0]} finite values; got shape {F.shape}")
     proj = float(res.phi @ F)
-    scale = float(np.linalg.norm(F) * np.linalg.norm(np.asarray(res.M @ res.phi)))
+    scale = float(np.linalg.norm(F) * np.linalg.norm(Mphi))
     if scale == 0.0 or abs(proj) <= 1e-12 * scale:
         raise SceneError(None, key, f"level {level}: the force does not excite the master mode "
                                     f"(phi^T F = {proj:.3g}): no resonant response at leading order")
@@ -243,7 +247,7 @@ def _one_level(av: Averaged, bb: Backbone, level: dict[str, Any], modal_force: f
               for a, b in dropped]
     folds = _folds(av, rho_peak)
     special = {0.0: rho_peak} | {s * np.sqrt(max(1.0 - x / rho_peak, 0.0)): x for x, s in folds}  # u -> rho
-    samples: list[tuple[float, float, int, bool]] = []  # (rho, c, segment, isola)
+    samples: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (rho, c, segment) per piece
     pieces = []
     for rho_of, csign, t, isola in _pieces(rho_peak, isolas):
         def omega_of(s, rho_of=rho_of, csign=csign):
@@ -264,12 +268,13 @@ def _one_level(av: Averaged, bb: Backbone, level: dict[str, Any], modal_force: f
         n = max(3, int(round(points * s[-1] / total)))
         ts = np.interp(np.linspace(0.0, s[-1], n), s, tt)
         ts = np.unique(np.concatenate([ts, [x for x in spec if tt[0] < x < tt[-1]]]))
-        for x in ts:
-            r = float(spec.get(x, rho_of(x)))  # the peak's and the folds' rho exactly
-            samples.append((r, float(csign(x) * av.cos_abs(r)), seg, isola))
-    rho = np.asarray([x[0] for x in samples])
-    c = np.asarray([x[1] for x in samples])
-    A = np.asarray([measured(av, bb, r, ci) for r, ci in zip(rho, c)])
+        r = np.asarray(rho_of(ts), dtype=float)
+        for x, rx in spec.items():  # the peak's and the folds' rho exactly
+            r[ts == x] = rx
+        samples.append((r, np.asarray(csign(ts) * av.cos_abs(r), dtype=float), np.full(len(ts), seg)))
+    rho = np.concatenate([x[0] for x in samples]) if samples else np.zeros(0)
+    c = np.concatenate([x[1] for x in samples]) if samples else np.zeros(0)
+    A = measured_many(av, bb, rho, c)
     valid = np.ones(len(rho), bool) if valid_to is None else A <= valid_to
     A_peak = bb.amplitude(rho_peak)
     W_peak = float(av.Od(rho_peak))
@@ -281,9 +286,9 @@ def _one_level(av: Averaged, bb: Backbone, level: dict[str, Any], modal_force: f
                           "in_range": bool(lo <= Wf <= hi)})
     fold_list.sort(key=lambda f: f["Omega"])
     return FRC(level=dict(level), modal_force=modal_force, Omega=av.omega_of(rho, c), rho=rho, amplitude=A,
-               w_max_h=None if transverse is None else np.asarray([bb.w_max(r, transverse, h or 1.0) for r in rho]),
-               stable=np.asarray([av.stable(r, ci) for r, ci in zip(rho, c)]), valid=valid,
-               segment=np.asarray([x[2] for x in samples], dtype=int),
+               w_max_h=None if transverse is None else bb.w_max_many(rho, transverse, h or 1.0),
+               stable=av.stable(rho, c), valid=valid,
+               segment=np.concatenate([x[2] for x in samples]).astype(int) if samples else np.zeros(0, dtype=int),
                peak={"amplitude": A_peak, "Omega": W_peak, "rho": rho_peak,
                      "valid": bool(valid_to is None or A_peak <= valid_to)},
                folds=fold_list, valid_to=valid_to, xi=av.xi, omega_d=av.omega_d,
@@ -292,15 +297,22 @@ def _one_level(av: Averaged, bb: Backbone, level: dict[str, Any], modal_force: f
 
 
 def measured(av: Averaged, bb: Backbone, rho: float, c: float) -> float:
-    """The amplitude ``A`` of ``q`` on the steady state ``(rho, c = -cos psi)``: the backbone's ``A0(rho)`` with
+    """:func:`measured_many` at one steady state ``(rho, c = -cos psi)``."""
+    return float(measured_many(av, bb, np.array([rho], dtype=float), np.array([c], dtype=float))[0])
+
+
+def measured_many(av: Averaged, bb: Backbone, rho: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The amplitude ``A`` of ``q`` on the steady states ``(rho, c = -cos psi)`` (n,): the backbone's ``A0(rho)`` with
     the averaging's first-order shift ``dA`` (:meth:`~stepnf.forced.averaged.Averaged.amplitude_shift`) as
     ``A0 / (1 - dA / A0)``: the same to first order, and exact for an undamped linear oscillator at every Omega
     (the forced amplitude ``k / |w^2 - Omega^2| = rho 2 w / (w + Omega)`` where ``dA / A0 = -(Omega - w) / (2 w)``),
     so that it stays positive far from the resonance, where ``A0 + dA`` would not. With damping a linear
     oscillator's curve is within ``0.35 xi^2`` (relative) of the exact one, its top ``0.125 xi^2`` above the exact
     peak (1.25e-5 at xi = 0.01, 0.5% at xi = 0.2), which ``peak`` reports (``A0(rho_peak)``, no shift)."""
-    A0 = bb.amplitude(rho)
-    return A0 / (1.0 - av.amplitude_shift(rho, c, *av.extremes(rho)) / A0)
+    if len(rho) == 0:
+        return np.zeros(0)
+    A0 = bb.amplitudes(rho)
+    return A0 / (1.0 - av.amplitude_shift_many(rho, c, *av.extremes_many(rho)) / A0)
 
 
 def _steps(W: np.ndarray, rho: np.ndarray, w: float, rho_peak: float) -> np.ndarray:

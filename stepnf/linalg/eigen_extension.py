@@ -32,6 +32,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from stepnf.linalg.block_lanczos import BLOCK_MIN_DOFS, BlockBreakdown, block_shift_invert_modes
+
 #: Modes asked for beyond a known need: a degenerate twin of the last needed mode and a few above it.
 TWIN_MARGIN = 4
 #: Smallest extension batch. ARPACK builds a Krylov space of ``ncv = max(2k + 1, 20)`` vectors,
@@ -50,9 +52,16 @@ def shift_invert_modes(K, M, sigma: float, fac, k: int, Q: np.ndarray | None,
     ``fac.solve`` applies ``(K - sigma M)^-1``; ``Q`` (n, q) holds M-orthonormal columns (rigid
     modes, modes already found) or is ``None``; ``calls[0]`` counts the shifted solves. Returns
     ``(lam, vec)``: eigenvalues ``w^2`` (k,) and M-orthonormal vectors (n, k). Requires
-    ``k + q < n``.
+    ``k + q < n``. A MUMPS factorisation of :data:`~stepnf.linalg.block_lanczos.BLOCK_MIN_DOFS` dofs or
+    more runs the block iteration of :mod:`stepnf.linalg.block_lanczos` (ARPACK when it breaks down).
     """
     n = K.shape[0]
+    if getattr(fac, "backend", None) == "mumps" and n >= BLOCK_MIN_DOFS:  # block solves (block_lanczos)
+        try:
+            return block_shift_invert_modes(M, sigma, lambda B: fac.solve(B, count=False), k, Q, calls,
+                                            tol=ARPACK_TOL, seed=START_SEED)
+        except BlockBreakdown:  # an invariant subspace reached, or no convergence in its basis: ARPACK
+            pass
     if Q is None or Q.shape[1] == 0:
         def opinv(b: np.ndarray) -> np.ndarray:
             calls[0] += 1

@@ -19,80 +19,19 @@ unlike 1 - cos). Measured: frequencies <= 1.5e-15 apart, subspaces <= 5e-12, clo
 """
 from __future__ import annotations
 
-import itertools
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from stepnf.runtime.counters import Counters
+from helpers.pencils import RHO, eigenspaces, lattice, membrane, outside
 from stepnf.linalg.eigen_extension import shift_invert_modes
 from stepnf.linalg.shifted import ShiftedFactorizer
 from stepnf.linalg.modal_analysis import ModalBasis, extend_basis, lambda_scale, modal_analysis, rigid_body_fields
 
-RHO = 3.0
 OMEGA_RTOL = 1e-10  # module docstring: two ARPACK runs agree to ~2e-12
 SHAPE_TOL = 1e-8  # module docstring: residual / gap ~ 2e-10
 TWIN = 1e-8  # frequencies closer than this (relative) are one eigenspace: exact twins agree to ~1e-14
-
-
-def membrane(m: int, free: bool):
-    """(K, M, omega) of an m x m membrane: 5-point Laplacian, mass RHO per node; ``omega`` exact (sorted,
-    rigid mode of the free membrane included as 0)."""
-    if free:
-        d = sp.diags([-np.ones(m - 1), np.r_[1.0, 2 * np.ones(m - 2), 1.0], -np.ones(m - 1)], [-1, 0, 1])
-        mu = 2 - 2 * np.cos(np.arange(m) * np.pi / m)
-    else:
-        d = sp.diags([-np.ones(m - 1), 2 * np.ones(m), -np.ones(m - 1)], [-1, 0, 1])
-        mu = 2 - 2 * np.cos(np.arange(1, m + 1) * np.pi / (m + 1))
-    eye = sp.identity(m)
-    K = (sp.kron(d, eye) + sp.kron(eye, d)).tocsr()
-    M = (RHO * sp.identity(m * m)).tocsr()
-    return K, M, np.sqrt(np.sort(np.add.outer(mu, mu).ravel()) / RHO)
-
-
-def lattice(a: int = 8, b: int = 8, c: int = 3, h=(1.0, 1.0, 0.5)):
-    """(K, M, X, D): nodes on an a x b x c grid (spacings h) joined by axial springs (stiffness 1/length)
-    across every edge, face and body diagonal of each cell: braced, six rigid modes; mass 2 per dof."""
-    idx = np.arange(a * b * c).reshape(a, b, c)
-    X = np.stack(np.meshgrid(*(np.arange(s) * hh for s, hh in zip((a, b, c), h)), indexing="ij"), -1).reshape(-1, 3)
-    offsets = [d for d in itertools.product((0, 1), repeat=3) if any(d)]
-    offsets += [(1, -1, 0), (1, 0, -1), (0, 1, -1), (1, 1, -1), (1, -1, 1), (-1, 1, 1)]
-    rows, cols, vals = [], [], []
-    for i, j, k in itertools.product(range(a), range(b), range(c)):
-        for d in offsets:
-            p, q, r = i + d[0], j + d[1], k + d[2]
-            if not (0 <= p < a and 0 <= q < b and 0 <= r < c):
-                continue
-            n1, n2 = idx[i, j, k], idx[p, q, r]
-            e = X[n2] - X[n1]
-            length = np.linalg.norm(e)
-            ke = np.outer(e, e) / length**3
-            for s, t, sign in ((n1, n1, 1), (n2, n2, 1), (n1, n2, -1), (n2, n1, -1)):
-                for u, v in itertools.product(range(3), repeat=2):
-                    rows.append(3 * s + u)
-                    cols.append(3 * t + v)
-                    vals.append(sign * ke[u, v])
-    n = 3 * a * b * c
-    K = sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
-    return (K + K.T) / 2, (2.0 * sp.identity(n)).tocsr(), np.repeat(X, 3, axis=0), np.tile([0, 1, 2], a * b * c)
-
-
-def clusters(omega: np.ndarray) -> list[list[int]]:
-    """Runs of frequencies equal to TWIN (relative): the eigenspaces."""
-    out = [[0]]
-    for s in range(1, len(omega)):
-        if omega[s] - omega[s - 1] <= TWIN * omega[s]:
-            out[-1].append(s)
-        else:
-            out.append([s])
-    return out
-
-
-def outside(A: np.ndarray, B: np.ndarray, M) -> float:
-    """Largest M-norm of a column of A outside span(B) (B M-orthonormal): sin of the largest angle."""
-    E = A - B @ (B.T @ (M @ A))
-    return float(np.sqrt(np.max(np.einsum("ij,ij->j", E, M @ E))))
 
 
 def assert_same_modes(ext: ModalBasis, ref: ModalBasis, M) -> None:
@@ -102,7 +41,7 @@ def assert_same_modes(ext: ModalBasis, ref: ModalBasis, M) -> None:
     np.testing.assert_allclose(ext.omega, ref.omega[:m], rtol=OMEGA_RTOL)
     gaps = np.diff(ref.omega[: m + 1]) / ref.omega[1: m + 1]
     assert gaps[gaps > TWIN].min() > 2.5e-3  # the premise of SHAPE_TOL
-    for group in clusters(ref.omega):
+    for group in eigenspaces(ref.omega, TWIN):
         if group[0] >= m:
             break
         mine = [s for s in group if s < m]  # ext may end inside a pair: its twin must lie in ref's pair
@@ -160,7 +99,7 @@ def test_degenerate_pair_split_between_batches():
     K, M, exact = membrane(48, free=False)
     first = 12  # clamped, no candidates: the first batch is need + 4 twins + 6 rigid room = 12 modes
     split = [first - 1, first]
-    assert split in clusters(exact[:40])  # exact modes 11 and 12 are a pair
+    assert split in eigenspaces(exact[:40], TWIN)  # exact modes 11 and 12 are a pair
     b, sizes, _ = extended(K, M, 24)
     assert sizes[0] == first  # the first batch held one twin of the pair
     np.testing.assert_allclose(b.omega[split], exact[split], rtol=1e-10)
