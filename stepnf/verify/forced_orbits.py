@@ -38,9 +38,9 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 from scipy.integrate import solve_ivp
-from scipy.optimize import minimize_scalar
 
 from stepnf.errors import NumericalError
+from stepnf.verify.periodic import refined_extrema
 
 Force = Callable[[np.ndarray], np.ndarray]
 #: Grid of the amplitude's first search over one period (then Brent between the grid's neighbours).
@@ -166,15 +166,9 @@ class ForcedShooting:
         n = self.n
         tau = np.linspace(0.0, 2 * np.pi, AMPLITUDE_GRID + 1)
         q = self.Mphi @ sol.sol(tau)[:n]
-        qf = lambda t: float(self.Mphi @ sol.sol(t % (2 * np.pi))[:n])  # noqa: E731
-        out = []
-        for i, sgn in ((int(np.argmax(q)), -1.0), (int(np.argmin(q)), 1.0)):
-            r = minimize_scalar(lambda t: sgn * qf(t), bounds=(tau[i] - tau[1], tau[i] + tau[1]), method="bounded",
-                                options={"xatol": 1e-13})
-            val = sgn * r.fun
-            out.append((max(val, q[i]) if sgn < 0 else min(val, q[i]), float(r.x) % (2 * np.pi)))
-        (qmax, tmax), (qmin, tmin) = out
-        return 0.5 * (qmax - qmin), tmax, tmin
+        (qmax, tmax), (qmin, tmin) = refined_extrema(tau, q, lambda t: float(self.Mphi @ sol.sol(t % (2 * np.pi))[:n]),
+                                                     1e-13, periodic=True)
+        return 0.5 * (qmax - qmin), tmax % (2 * np.pi), tmin % (2 * np.pi)
 
     def amplitude_gradient(self, vsol, tmax: float, tmin: float) -> np.ndarray:
         """``dA/d(y0, Omega)`` (2n + 1,) from the variational run's dense output at the extrema's phases."""

@@ -28,9 +28,9 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.integrate import solve_ivp
-from scipy.optimize import minimize_scalar
 
 from stepnf.errors import NumericalError
+from stepnf.verify.periodic import refined_half_range
 
 
 @dataclass
@@ -141,16 +141,8 @@ class FreeShooting:
         sol = self.integrate(y0, T, dense=True)
         t = np.linspace(0.0, T, 4001)
         q = self.Mphi @ sol.sol(t)[:self.n]
-
-        def qf(s: float) -> float:
-            return float(self.Mphi @ sol.sol(min(max(s, 0.0), T))[:self.n])
-        ext = []
-        for i, sgn in ((int(np.argmax(q)), -1.0), (int(np.argmin(q)), 1.0)):
-            lo, hi = t[max(i - 1, 0)], t[min(i + 1, len(t) - 1)]
-            r = minimize_scalar(lambda s: sgn * qf(s), bounds=(lo, hi), method="bounded", options={"xatol": 1e-14 * T})
-            val = sgn * r.fun
-            ext.append(max(val, q[i]) if sgn < 0 else min(val, q[i]))
-        return 0.5 * (ext[0] - ext[1])
+        return refined_half_range(t, q, lambda s: float(self.Mphi @ sol.sol(min(max(s, 0.0), T))[:self.n]),
+                                  1e-14 * T)
 
     def at_amplitude(self, A: float, guess: tuple[np.ndarray, np.ndarray, float], *, tol: float = 1e-12,
                      maxiter: int = 30) -> FreeOrbit:

@@ -312,14 +312,8 @@ class Shooting:
         sol = self.integrate(x0, T / 2, dense=True)
         t = np.linspace(0.0, T / 2, 2001)
         q = self.Mphi @ sol.sol(t)[: self.n]
-        qf = lambda s: float(self.Mphi @ sol.sol(min(max(s, 0.0), T / 2))[: self.n])  # noqa: E731
-        ext = []
-        for i, sgn in ((int(np.argmax(q)), -1.0), (int(np.argmin(q)), 1.0)):
-            lo, hi = t[max(i - 1, 0)], t[min(i + 1, len(t) - 1)]
-            r = minimize_scalar(lambda s: sgn * qf(s), bounds=(lo, hi), method="bounded", options={"xatol": 1e-14 * T})
-            val = sgn * r.fun
-            ext.append(max(val, q[i]) if sgn < 0 else min(val, q[i]))
-        return 0.5 * (ext[0] - ext[1])
+        return refined_half_range(t, q, lambda s: float(self.Mphi @ sol.sol(min(max(s, 0.0), T / 2))[: self.n]),
+                                  1e-14 * T)
 
     def _implicit_amplitude(self, x0: np.ndarray, T: float) -> tuple[float, np.ndarray]:
         """As :meth:`amplitude` (and the state at ``T / 2``), from the nodes of the implicit integration:
@@ -329,21 +323,14 @@ class Shooting:
         run = self._implicit(x0, T, keep=True)
         nodes, h, n = run.nodes, run.h, self.n
         q, qd = nodes[:, :n] @ self.Mphi, nodes[:, n:] @ self.Mphi
-        ext = []
-        for i, sgn in ((int(np.argmax(q)), -1.0), (int(np.argmin(q)), 1.0)):
-            if i in (0, len(q) - 1) and abs(qd[i]) <= 1e-9 * self.omega * max(abs(q[i]), 1e-300):
-                ext.append(q[i])
-                continue
 
-            def qf(t: float) -> float:
-                k = min(int(t // h), len(q) - 2)
-                return float(self.Mphi @ self._gl.state_at(nodes[k], t - k * h)[:n])
-            lo, hi = h * max(i - 1, 0), h * min(i + 1, len(q) - 1)
-            r = minimize_scalar(lambda t: sgn * qf(t), bounds=(lo, hi), method="bounded",
-                                options={"xatol": 1e-14 * T})
-            val = sgn * r.fun
-            ext.append(max(val, q[i]) if sgn < 0 else min(val, q[i]))
-        return 0.5 * (ext[0] - ext[1]), nodes[-1]
+        def qf(t: float) -> float:
+            k = min(int(t // h), len(q) - 2)
+            return float(self.Mphi @ self._gl.state_at(nodes[k], t - k * h)[:n])
+
+        def at_node(i: int) -> bool:  # a brake orbit's end: q' = 0 there
+            return i in (0, len(q) - 1) and abs(qd[i]) <= 1e-9 * self.omega * max(abs(q[i]), 1e-300)
+        return refined_half_range(h * np.arange(len(q)), q, qf, 1e-14 * T, exact=at_node), nodes[-1]
 
     def at_amplitude(self, A: float, *, steps: int = 6, guess: tuple[np.ndarray, float] | None = None,
                      tol: float = 1e-12, maxiter: int = 30) -> PeriodicOrbit:
@@ -369,3 +356,30 @@ class Shooting:
             q = orb.q0 + (A - orb.amplitude) / slope
             prev, orb = orb, self.orbit(q, orb.x0 * (q / orb.q0), orb.period)
         raise NumericalError(f"shooting: amplitude {A:.6g} not reached (last {orb.amplitude:.12g})")
+
+
+def refined_half_range(t: np.ndarray, q: np.ndarray, qf: Callable[[float], float], xatol: float, *,
+                       exact: Callable[[int], bool] = lambda i: False) -> float:
+    """``(max q - min q) / 2`` of a signal sampled as ``q`` at the times ``t`` (:func:`refined_extrema`)."""
+    (qmax, _), (qmin, _) = refined_extrema(t, q, qf, xatol, exact=exact)
+    return 0.5 * (qmax - qmin)
+
+
+def refined_extrema(t: np.ndarray, q: np.ndarray, qf: Callable[[float], float], xatol: float, *,
+                    exact: Callable[[int], bool] = lambda i: False,
+                    periodic: bool = False) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``((q_max, t_max), (q_min, t_min))`` of a signal sampled as ``q`` at the evenly spaced times ``t``:
+    each extremum refined by Brent's bounded search on ``qf(t)`` within one spacing of its sample (clipped to
+    ``t``'s ends unless ``periodic``; ``qf`` then takes any time), to ``xatol``; the sample's value kept
+    when it is better (the time is Brent's). ``exact(i)``: sample ``i`` is the extremum itself (not refined)."""
+    out = []
+    dt = t[1] - t[0]
+    for i, sgn in ((int(np.argmax(q)), -1.0), (int(np.argmin(q)), 1.0)):
+        if exact(i):
+            out.append((float(q[i]), float(t[i])))
+            continue
+        lo, hi = (t[i] - dt, t[i] + dt) if periodic else (t[max(i - 1, 0)], t[min(i + 1, len(t) - 1)])
+        r = minimize_scalar(lambda s: sgn * qf(s), bounds=(lo, hi), method="bounded", options={"xatol": xatol})
+        val = sgn * r.fun
+        out.append((max(val, q[i]) if sgn < 0 else min(val, q[i]), float(r.x)))
+    return out[0], out[1]
