@@ -39,8 +39,9 @@ from stepnf.linalg.block_product import block_product
 BLOCK = 4
 #: Smallest model (dofs) whose MUMPS eigen-solve uses the block iteration; below it ARPACK, whose
 #: single solves take milliseconds there. Measured (bench/eigen_block.py, 31 modes of the cap, one thread,
-#: a loaded machine): the block iteration 1.98x / 1.14x / 2.6x / 1.9x faster at 10k / 22k / 44k / 250k
-#: dofs; the threshold takes the main job's 38k-dof cap and keeps the small models of the tests on ARPACK.
+#: a loaded machine): the block iteration 2.05x / 1.87x / 1.94x / 2.69x / 1.86x faster at 10k / 22k / 44k /
+#: 250k / 1M dofs (0.5 s gained at 10k); the threshold takes the main job's 38k-dof cap and keeps the small
+#: models of the tests on ARPACK.
 BLOCK_MIN_DOFS = 20_000
 #: Restarts before giving up (the caller then runs ARPACK).
 MAX_RESTARTS = 20
