@@ -269,7 +269,11 @@ READING = """Reading (run of 2026-12-02, 3D at order 9; the tables 'by order N' 
   a change of type of (0,2) (softening -> hardening near W_max/h ~ 0.7) and of (2,1) (hardening ->
   softening near 0.3) is possible but NOT decided by a single-mode backbone; the validity test (orders
   N-2 and N within 1e-3 in frequency and 3e-2 in shape) is coarser than the effect for (2,1). A two-mode
-  (1:2) manifold is the tool for these: `docs/backbone/kappa25_manifolds.md` (issue 33) has them."""
+  (1:2) manifold is the tool for these: `docs/backbone/kappa25_manifolds.md` (issue 33) has them on both
+  models. On the 3D model the partners that couple are (4,1) for (2,1) and (0,3) at 2.130 w for (0,2) (not
+  the modes at 1.967 and 2.049 w); the manifolds match the full model's orbits within 1.5e-5 in frequency up
+  to W_max/h ~ 0.27 and 0.38 ((2,1)'s also removes the parity swing), but their validity ends at 0.28 and
+  0.45: neither change of type is decided there either."""
 
 
 if __name__ == "__main__":
