@@ -88,13 +88,22 @@ def wait_for(path: Path, seconds: float = 120.0) -> int:
     raise AssertionError(f"{path} never appeared")
 
 
+def default_signals() -> None:
+    """In the driver, before it starts: SIGINT, SIGTERM and SIGHUP at their default action. A suite started under
+    ``nohup`` (or as a background job) passes them on IGNORED, and stepnf keeps an ignored one ignored
+    (test_an_ignored_sighup_stays_ignored): the driver would not stop."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
 def test_a_signal_kills_the_solver_group_removes_its_folder_and_the_rerun_resumes(tmp_path, sig):
     make_scene(tmp_path)
     cmd = [sys.executable, str(tmp_path / "driver.py"), str(tmp_path)]
     # past 80 fields: the targeted plan (8 fields) and the first full-plan chunk (64) are checkpointed
     # (tests/step/test_resume.py::test_killed_run_resumes counts them)
-    proc = subprocess.Popen([*cmd, "80"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*cmd, "80"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=default_signals)
     try:
         child = wait_for(tmp_path / "child.pid")
         grandchild = wait_for(tmp_path / "grandchild.pid")
