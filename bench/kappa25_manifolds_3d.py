@@ -205,8 +205,6 @@ def child(name: str) -> dict:
 
 def beyond(result, model, adapter, row: dict, targets: list, say) -> list:
     """The full model's trajectories from the continuing branch at W_max/h = ``targets`` (module docstring)."""
-    import numpy as np
-
     import stepnf.verify.manifold_orbits as mo
     from stepnf.dpim.multimode.backbone import point_at
     from stepnf.plugin.dofs import translation_mask
@@ -219,49 +217,50 @@ def beyond(result, model, adapter, row: dict, targets: list, say) -> list:
     chart = mo.ManifoldChart(man, K, M)
     mask = translation_mask(getattr(model, "dirs", None))
     tangent = adapter.tangent_stiffness if adapter.provides_tangent_stiffness else None
-    out = []
-    for w in targets:
-        A = float(np.interp(w, GRID, [a if a is not None else np.nan for a in row["amplitude"]]))
-        say(f"beyond validity: W_max/h = {w}, A = {A:.6g}")
-        try:
-            chk = mo.integrate_orbit(man, chart, branch, A, mo.start_point(man, chart, branch, point_at(man, branch, A)),
-                                     K, M, adapter.internal_forces, tangent=tangent, jacobian="auto", periods=3.0,
-                                     rtol=1e-6, per_period=None, mask=mask)
-        except Exception as exc:  # noqa: BLE001 (a bench: the failure is the result)
-            out.append({"w_over_h": w, "amplitude": A, "error": f"{type(exc).__name__}: {exc}"})
-            continue
-        out.append({"w_over_h": w, **{k: chk.get(k) for k in (
-            "amplitude", "orbit_amplitude", "omega_dpim_over_omega", "omega_check_over_omega", "relative_difference",
-            "manifold_distance", "error_estimate", "seconds", "start")}})
-        say(f"  w/w full {chk['omega_check_over_omega']:.6f}, manifold {chk['omega_dpim_over_omega']:.6f}, "
-            f"distance {chk['manifold_distance']:.3g}")
-    return out
+
+    def integrate(A: float) -> dict:
+        return mo.integrate_orbit(man, chart, branch, A, mo.start_point(man, chart, branch, point_at(man, branch, A)),
+                                  K, M, adapter.internal_forces, tangent=tangent, jacobian="auto", periods=3.0,
+                                  rtol=1e-6, per_period=None, mask=mask)
+    return trajectories(row, targets, say, integrate, "beyond validity", "manifold", KEYS + ("start",))
 
 
 def beyond_single(result, model, adapter, row: dict, targets: list, say) -> list:
     """As :func:`beyond`, started from the single-mode parametrisation (``stepnf verify``'s by_integration)."""
-    import numpy as np
-
     from stepnf.plugin.dofs import translation_mask
     from stepnf.verify.command import by_integration, check_dict
 
     res = result.backbones[int(row["index"])]
     mask = translation_mask(getattr(model, "dirs", None))
     tangent = adapter.tangent_stiffness if adapter.provides_tangent_stiffness else None
+
+    def integrate(A: float) -> dict:
+        return check_dict(by_integration(res, model.K, model.M, adapter.internal_forces, A, periods=3.0, rtol=1e-6,
+                                         tangent=tangent, jacobian="auto", mask=mask), float(res.omega))
+    return trajectories(row, targets, say, integrate, "beyond validity (single-mode start)", "single-mode", KEYS)
+
+
+#: What a trajectory's record keeps of the check.
+KEYS = ("amplitude", "orbit_amplitude", "omega_dpim_over_omega", "omega_check_over_omega", "relative_difference",
+        "manifold_distance", "error_estimate", "seconds")
+
+
+def trajectories(row: dict, targets: list, say, integrate, what: str, start: str, keys: tuple) -> list:
+    """``integrate(A)`` at the amplitude of each ``W_max/h`` in ``targets`` (the row's curve interpolated): one
+    record per target, the failure's message as its result."""
+    import numpy as np
+
     out = []
     for w in targets:
         A = float(np.interp(w, GRID, [a if a is not None else np.nan for a in row["amplitude"]]))
-        say(f"beyond validity (single-mode start): W_max/h = {w}, A = {A:.6g}")
+        say(f"{what}: W_max/h = {w}, A = {A:.6g}")
         try:
-            chk = check_dict(by_integration(res, model.K, model.M, adapter.internal_forces, A, periods=3.0, rtol=1e-6,
-                                            tangent=tangent, jacobian="auto", mask=mask), float(res.omega))
+            chk = integrate(A)
         except Exception as exc:  # noqa: BLE001 (a bench: the failure is the result)
             out.append({"w_over_h": w, "amplitude": A, "error": f"{type(exc).__name__}: {exc}"})
             continue
-        out.append({"w_over_h": w, **{k: chk.get(k) for k in (
-            "amplitude", "orbit_amplitude", "omega_dpim_over_omega", "omega_check_over_omega", "relative_difference",
-            "manifold_distance", "error_estimate", "seconds")}})
-        say(f"  w/w full {chk['omega_check_over_omega']:.6f}, single-mode {chk['omega_dpim_over_omega']:.6f}, "
+        out.append({"w_over_h": w, **{k: chk.get(k) for k in keys}})
+        say(f"  w/w full {chk['omega_check_over_omega']:.6f}, {start} {chk['omega_dpim_over_omega']:.6f}, "
             f"distance {chk['manifold_distance']:.3g}")
     return out
 
