@@ -7,6 +7,7 @@ for the elliptic orbits, which are no brake orbits) and Duffing's exact frequenc
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import h5py
@@ -19,6 +20,7 @@ from scipy.special import ellipk
 from stepnf.dpim.multimode.backbone import backbone_branches, omega_at, point_at, tabulate, validity
 from stepnf.dpim.multimode.branches import ReducedSystem
 from stepnf.dpim.multimode.manifold import parametrise_manifold
+from stepnf.dpim.multimode.measures import OrbitMeasure
 from stepnf.dpim.parametrisation import DPIM
 from stepnf.errors import NumericalError
 from stepnf.verify.periodic import Shooting
@@ -413,3 +415,24 @@ def test_validity_ends_where_the_orders_disagree_on_stability():
     first_stable = float(b.A[np.argmax(b.stable), 1])
     assert b.stable.any() and b.valid_reason == "stability differs"
     assert b.valid_A is not None and b.valid_A < first_stable
+
+
+def test_w_max_through_a_real_map_keeps_the_imaginary_parts():
+    """The adapters' transverse maps take real fields (np.asarray(Phi, dtype=float)); a manifold's coefficients are
+    complex. The same 1:2 manifold in normal coordinates turned by phases (``z_j -> z_j e^{i theta_j}``: every
+    W[alpha] times ``e^{i theta . (a - b)}``, complex) measured on the same orbit through such a map and through the
+    dof indices (exact for complex fields): equal to round-off (before the fix the map dropped the imaginary
+    parts: 25% off here), and equal to the unturned manifold's W_max. The manifolds stepnf builds have real W to
+    round-off (conservative models, real modes), so the warning the cast raised there had lost nothing measurable."""
+    M, K, f = one_to_two(0.3)
+    man = parametrise_manifold(DPIM(f, K, M), [0, 1], np.eye(2), np.array([1.0, 2.0]), 5, probe=1.0)
+    theta = np.array([0.7, -1.9])
+    turned = replace(man, W={a: np.asarray(v) * np.exp(1j * theta @ np.subtract(a[:2], a[2:]))
+                             for a, v in man.W.items()})
+    zeta = np.array([0.4, 0.15 - 0.1j])
+    real_map = lambda Y: np.asarray(Y, dtype=float)  # noqa: E731  (as stepnf_fenicsx's transverse_displacements)
+    exact = OrbitMeasure(man, [1, 2]).w_max(zeta, [0, 1])
+    by_index = OrbitMeasure(turned, [1, 2]).w_max(zeta * np.exp(-1j * theta), [0, 1])
+    by_map = OrbitMeasure(turned, [1, 2]).w_max(zeta * np.exp(-1j * theta), real_map)
+    assert by_index == pytest.approx(exact, rel=1e-13)  # round-off of a few products of O(1) numbers
+    assert by_map == pytest.approx(exact, rel=1e-13)

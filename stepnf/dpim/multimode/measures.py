@@ -92,9 +92,14 @@ class OrbitMeasure:
 
     def w_max(self, zeta: np.ndarray, transverse: Transverse, h: float = 1.0) -> float:
         """Largest ``|x_i|`` over the transverse dofs and the period, divided by ``h``: ``transverse`` the
-        indices of those dofs or a callable mapping fields (n, k) to transverse displacements (t, k)."""
+        indices of those dofs or a callable mapping real fields (n, k) to transverse displacements (t, k), linear
+        (the manifold's complex coefficients go through it as their real and imaginary parts)."""
         if self._transverse is None or self._transverse[0] is not transverse:
-            T = transverse(self.Ws) if callable(transverse) else self.Ws[np.asarray(transverse)]
+            if callable(transverse):  # a real linear map (an adapter's takes real fields: casting a complex field
+                # to float would drop its imaginary part), applied to both parts
+                T = np.asarray(transverse(self.Ws.real)) + 1j * np.asarray(transverse(self.Ws.imag))
+            else:
+                T = self.Ws[np.asarray(transverse)]
             self._transverse = (transverse, np.asarray(T))
         a, b = self._series(self._transverse[1] * self._monomials(zeta)[None, :])
         x = a @ self._cos + b @ self._sin
