@@ -253,7 +253,7 @@ def manifold_backbone(state: StageView, plan: ManifoldPlan, made: dict, p: int, 
         state.progress.message(f"backbone of master mode {p} on the manifold of modes {list(plan.modes)} failed: {exc}")
         return failed_backbone(spec, probe, exc)
     block = no_manifold(force_accuracy(bo.block, record, state.policy.tolerance), record)
-    return BackboneOutput(None, block, (), bo.arrays)
+    return BackboneOutput(None, block, (), bo.arrays, manifold=man)
 
 
 def force_accuracy(block: dict, record, tolerance: float) -> dict:

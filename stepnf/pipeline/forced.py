@@ -2,7 +2,10 @@
 
 Per master ``p`` whose backbone stage kept a single-mode parametrisation (:class:`~stepnf.dpim.parametrisation.DPIMResult`)
 with a validity range, one curve per forcing level (:func:`stepnf.forced.frc.forced_responses`: the averaged
-reduced dynamics on the conservative manifold, damped to first order):
+reduced dynamics on the conservative manifold, damped to first order); per master on a manifold of several modes
+(``[analysis.backbone] manifolds``), the curves of :func:`stepnf.forced.manifold_frc.manifold_forced_responses` (the
+rotating-frame steady states of the manifold's reduced dynamics, damping and forcing at leading order), with every
+manifold mode's amplitude:
 
 * ``modal = [k, ...]``: ``F = k M phi_p`` (``phi_p`` mass-normalised, so the master's modal force is ``k``);
 * ``load = {set | box, dofs, amplitude}``: ``F`` the nodal forces, ``amplitude`` (force units) on each named dof
@@ -15,8 +18,8 @@ a box among the dofs' coordinates, a named set among the node sets of the adapte
 directions, or an adapter that exposes no node sets is a :class:`~stepnf.errors.SceneError` naming
 ``analysis.forcing.load.*`` (exit 2).
 
-A master without a usable backbone (its DPIM failed or was refused: a driven twin; a master on a manifold of
-several modes; a backbone with no validity range) gets no curve and a reason (``frc_reason``), never a crash.
+A master without a usable backbone (its DPIM failed or was refused: a driven twin; a backbone with no validity
+range) gets no curve and a reason (``frc_reason``), never a crash.
 """
 from __future__ import annotations
 
@@ -29,6 +32,7 @@ import numpy as np
 from stepnf.errors import NumericalError, SceneError
 from stepnf.forced.damping import Damping, damping_ratio
 from stepnf.forced.frc import forced_responses
+from stepnf.forced.manifold_frc import manifold_forced_responses
 from stepnf.forced.spec import LoadSpec
 from stepnf.plugin.adapter import DIRECTIONS
 from stepnf.plugin.boundary import BoundaryCondition, box_tolerance, select_nodes
@@ -161,9 +165,9 @@ def unusable(bb: Any) -> str | None:
     block = bb.block
     if block.get("failed"):
         return "its backbone failed"
-    if block.get("manifold"):
-        return "its backbone is on a manifold of several modes (forced responses there: not yet)"
-    if bb.result is None:
+    if block.get("manifold") and getattr(bb, "manifold", None) is None:
+        return "its manifold of several modes is not kept"
+    if bb.result is None and not block.get("manifold"):
         return f"no single-mode parametrisation ({block.get('valid_reason') or 'refused'})"
     if block.get("valid_up_to") == 0:
         return f"its backbone has no validity range ({block.get('valid_reason')})"
@@ -194,6 +198,9 @@ def forced_stage(ctx: RunContext, model: RunModel, modes: RunModes, evals: Evalu
                 if why is not None:
                     out[p] = ForcedOutput(reason=why)
                     continue
+                if bb.result is None:  # on a manifold of several modes
+                    out[p] = manifold_output(ctx, model, bb, damping, loaded, wmax if linear else None, j, p)
+                    continue
                 backbone = bb.result.backbone()
                 try:
                     frcs = forced_responses(bb.result, damping, levels(ctx, model, loaded),
@@ -211,20 +218,39 @@ def forced_stage(ctx: RunContext, model: RunModel, modes: RunModes, evals: Evalu
     return replace(backbones, forced=out)
 
 
+def manifold_output(ctx: RunContext, model: RunModel, bb: Any, damping: Damping, loaded: np.ndarray | None,
+                    wmax: Any, j: int, p: int) -> ForcedOutput:
+    """Master ``p``'s curves on its manifold of several modes (``bb.manifold``), or no curve and the reason."""
+    man = bb.manifold
+    try:
+        frcs = manifold_forced_responses(man, damping, levels(ctx, model, loaded), ctx.scene.forcing.frequency_range,
+                                         list(man.masters).index(p), valid_to=bb.block.get("valid_up_to"),
+                                         transverse=None if wmax is None else wmax.linear,
+                                         h=1.0 if wmax is None else float(wmax.h), master=j)
+    except (NumericalError, SceneError) as exc:
+        ctx.progress.message(f"forced response of master mode {p} failed: {exc}")
+        return ForcedOutput(reason=f"not computed: {' '.join(str(exc).split())}")
+    return ForcedOutput(tuple(frcs), None, frc_arrays(p, frcs))
+
+
 def levels_of(scene: Any) -> tuple:
     forcing = scene.forcing
     return forcing.modal if forcing.modal is not None else forcing.load.amplitude
 
 
 def frc_arrays(p: int, frcs: list) -> dict[str, np.ndarray]:
-    """The HDF5 arrays of master ``p``'s curves: ``frc_<p>_<i>_Omega``, ``_amplitude``, ``_rho``, ``_stable``,
-    ``_valid``, ``_segment`` (level ``i`` in the scene's order) and ``_w_max_over_h`` where measured."""
+    """The HDF5 arrays of master ``p``'s curves: ``frc_<p>_<i>_Omega``, ``_amplitude``, ``_rho`` (single-mode
+    curves), ``_stable``, ``_valid``, ``_segment`` (level ``i`` in the scene's order), ``_w_max_over_h`` where
+    measured and, on a manifold of several modes, ``_amplitude_<q>`` of every manifold mode q."""
     out = {}
     for i, c in enumerate(frcs):
         key = f"frc_{p}_{i}"
         out[f"{key}_Omega"] = np.asarray(c.Omega, dtype=float)
         out[f"{key}_amplitude"] = np.asarray(c.amplitude, dtype=float)
-        out[f"{key}_rho"] = np.asarray(c.rho, dtype=float)
+        if getattr(c, "rho", None) is not None:
+            out[f"{key}_rho"] = np.asarray(c.rho, dtype=float)
+        for q, A in zip(getattr(c, "masters", ()), np.asarray(getattr(c, "amplitudes", np.zeros((0, 0)))).T):
+            out[f"{key}_amplitude_{q}"] = np.asarray(A, dtype=float)
         out[f"{key}_stable"] = np.asarray(c.stable, dtype=bool)
         out[f"{key}_valid"] = np.asarray(c.valid, dtype=bool)  # within the backbone's validity range
         out[f"{key}_segment"] = np.asarray(c.segment, dtype=int)  # the piece in the range (or isola) of each point

@@ -182,12 +182,15 @@ class Evaluations:
 @dataclass(frozen=True)
 class BackboneOutput:
     """One master's backbone: its parametrisation (None when refused), the ``backbone`` block of its
-    record, the flags its methods get (a refused parametrisation), its HDF5 arrays (``backbone_<p>_*``)."""
+    record, the flags its methods get (a refused parametrisation), its HDF5 arrays (``backbone_<p>_*``); ``manifold``:
+    the :class:`~stepnf.dpim.multimode.manifold.ManifoldResult` of a master on a manifold of several modes (its forced
+    responses are traced on it), else None."""
 
     result: Any
     block: dict
     method_flags: tuple[dict, ...] = ()
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    manifold: Any = None
 
 
 @dataclass(frozen=True)

@@ -54,14 +54,19 @@ def frc_lines(mode: Any) -> list[str]:
                  _f(pk.get("w_max_h"), "{:.4g}").ljust(8), str(len(c.get("folds") or [])).ljust(5),
                  "-" if valid is None else "yes" if valid else "no (beyond the backbone's validity)"]
         out.append(("  " + "  ".join(cells)).rstrip())
-        out += [f"    {_level(c)}: {note}" for note in _notes(c)]
+        out += [f"    {_level(c)}: {note}" for note in _notes(c, w)]
     return out
 
 
-def _notes(c: dict[str, Any]) -> list[str]:
+def _notes(c: dict[str, Any], w: float = 1.0) -> list[str]:
     """What the line of one level does not say: a peak outside ``frequency_range`` (not on the curve), isolas
-    (closed curves of their own, drawn), what was found and not followed (the curve's ``flags``)."""
+    (closed curves of their own, drawn), the branch points of a curve on a manifold of several modes (where a
+    coupled branch is born), what was found and not followed (the curve's ``flags``)."""
     out = []
+    bps = c.get("branch_points") or []
+    if bps:
+        at = ", ".join(f"{float(b['Omega']) / w:.6f}" for b in bps)
+        out.append(f"branch point(s) at Omega/w_p = {at} (manifold {c.get('manifold')}): coupled branch(es) drawn")
     if c.get("peak_outside_range"):
         out.append("peak outside [analysis.forcing] frequency_range (not on the curve drawn)")
     if c.get("isolas"):

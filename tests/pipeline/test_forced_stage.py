@@ -141,19 +141,62 @@ def test_load_on_a_box_equals_the_function_with_its_force(folder):
     assert c[0]["peak"]["amplitude"] == pytest.approx(kappa / (2 * XI * np.sqrt(1 - XI ** 2)), rel=1e-6)
 
 
-def test_masters_without_a_usable_backbone_say_why(tmp_path):
-    """Mode 0 on the manifold of modes 0 and 4 (near_one_to_four): no curve, the reason; the run goes on (exit 0)."""
+def test_masters_on_a_manifold_of_several_modes_get_curves(tmp_path):
+    """Mode 0 on the manifold of modes 0 and 4 (near_one_to_four; mode 4 is no scene master, so modal damping leaves
+    it undamped: xi = 0 there, nothing divides by it): its curve (stepnf.forced.manifold_frc), with mode 4's
+    amplitude; master 1 its single-mode curve; the run goes on (exit 0). (Issue 34 on issue 33: before, master 0
+    got no curve and the reason "its backbone is on a manifold of several modes (forced responses there: not
+    yet)".) Light forcing (kappa = 1e-4, A ~ 5e-3): the linear peak kappa / (2 xi sqrt(1 - xi^2) w^2) to the
+    cubic bend ~0.1 A^2 relative (< 1e-5)."""
     shutil.copy(EXAMPLES / "near_one_to_four.npz", tmp_path / "near_one_to_four.npz")
     path = tmp_path / "s.toml"
-    path.write_text(scene("modal = [0.01]\nfrequency_range = [0.9, 1.1]\n", masters=(0, 1),
+    path.write_text(scene("modal = [0.0001]\nfrequency_range = [0.9, 1.1]\n", masters=(0, 1),
                           backbone="order = 7\nmanifolds = [[0, 4]]\n").replace("two_dof", "near_one_to_four"))
     res = run_scene(load_scene(path), write=False)
     on, off = res.modes
-    assert on.frc == [] and "manifold of several modes" in on.frc_reason
+    assert on.frc_reason is None and len(on.frc) == 1
     assert off.frc and off.frc_reason is None  # master 1: its single-mode backbone, its curve
-    doc = json.loads(res.to_json())["modes"]
-    assert doc[0]["frc"] == [] and "manifold" in doc[0]["frc_reason"] and "frc_reason" not in doc[1]
-    assert "forced responses [0 -]: n/a (its backbone is on a manifold of several modes" in format_table(res)
+    c = json.loads(res.to_json())["modes"][0]["frc"][0]
+    assert c["manifold"] == [0, 4] and set(c["amplitudes"]) == {"0", "4"} and c["kappa"] == 0.0001
+    assert all(c["stable"])  # (the undamped partner's eigenvalues on the axis count as stable: round-off)
+    w = float(on.omega)
+    assert c["peak"]["amplitude"] == pytest.approx(1e-4 / (2 * XI * np.sqrt(1 - XI ** 2) * w * w), rel=1e-5)
+    assert "frc_0_0_amplitude_4" in res.arrays and len(res.arrays["frc_0_0_Omega"]) == len(c["Omega"])
+    assert "forced responses [0 -], xi = 0.01:" in format_table(res)
+
+
+def test_both_masters_of_a_one_to_two_manifold_through_the_command_line(tmp_path, capsys):
+    """A near 1:2 pair (``x1'' + x1 + 2 x1 x2 + 0.1 x1^3 = 0``, ``x2'' + 1.97^2 x2 + x1^2 + 0.1 x2^3 = 0``) with
+    ``manifolds = [[0, 1]]``, modal damping and forcing: ``stepnf run`` exits 0, both masters get one curve per
+    level with both modes' amplitudes (JSON and HDF5), the table prints both, the figure is drawn. Forcing mode 1
+    (the higher) its uncoupled response (mode 0 at rest: exact on the manifold) loses its stability at two branch
+    points, where the coupled branch (a second segment) is born; its peak is the linear one, ``2 |zeta_1| = kappa /
+    (2 xi w1 w_d1)`` (to the cubic bend ~0.1 A^2 ~ 2e-3 relative: bound 5e-3). Before issue 34 on manifolds: no
+    curve for either master (the reason "forced responses there: not yet")."""
+    from helpers.systems import sym
+
+    w1 = 1.97
+    save_system(tmp_path / "pair.npz", np.eye(2), np.diag([1.0, w1 * w1]), sym((2, 2, 2), {(0, 0, 1): 1.0}),
+                sym((2, 2, 2, 2), {(0, 0, 0, 0): 0.1, (1, 1, 1, 1): 0.1}),
+                coordinates=np.array([[0.0, 0, 0], [1.0, 0, 0]]), directions=np.array([2, 2]))
+    path = tmp_path / "pair.toml"
+    path.write_text(scene("modal = [0.01]\nfrequency_range = [0.85, 1.15]\n", masters=(0, 1),
+                          backbone="order = 7\nmanifolds = [[0, 1]]\n").replace("two_dof", "pair")
+                    .replace('dir = "out"\n', 'dir = "out"\nplot = true\n'))
+    assert main(["run", str(path), "-q"]) == 0
+    out = capsys.readouterr().out
+    assert "forced responses [0 -], xi = 0.01:" in out and "forced responses [1 -], xi = 0.01:" in out
+    assert "kappa 0.01: branch point(s) at Omega/w_p = " in out  # under master 1's line
+    doc = read_hdf5(tmp_path / "out" / "pair.h5")
+    low, high = (m["frc"][0] for m in doc["modes"][:2])
+    for c in (low, high):
+        assert c["manifold"] == [0, 1] and len(c["amplitudes"]["1"]) == len(c["Omega"]) and c["peak"]["valid"]
+    assert len(low["folds"]) >= 2 and min(low["amplitudes"]["1"]) > 0  # mode 0 drives mode 1 through the 1:2
+    assert len(high["branch_points"]) == 2 and sorted(set(high["segment"])) == [0, 1]
+    assert max(high["amplitudes"]["0"][: high["segment"].index(1)]) < 1e-15
+    assert high["peak"]["amplitude"] == pytest.approx(0.01 / (2 * XI * w1 * w1 * np.sqrt(1 - XI ** 2)), rel=5e-3)
+    assert "frc_1_0_amplitude_0" in doc["arrays"] and "frc_0_0_amplitude_1" in doc["arrays"]
+    assert (tmp_path / "out" / "pair_frc.png").is_file()
 
 
 def test_example_scene(tmp_path, capsys):

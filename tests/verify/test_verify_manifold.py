@@ -39,3 +39,20 @@ def test_manifold_master_verified_beside_a_single_mode_master(tmp_path, capsys):
     text = format_report(doc)  # what stepnf verify prints without --json
     assert "branch 0 'continues mode 0'" in text and "NOT VERIFIED" not in text + err
     assert "amplitudes from --amplitudes" in text  # master 1's header, as before
+
+
+def test_forced_responses_on_a_manifold_are_said_not_verified(tmp_path, capsys):
+    """With [analysis.damping] and [analysis.forcing] master 0's curve (on the manifold of modes 0 and 4,
+    stepnf.forced.manifold_frc) has no full-model check yet: its entry says so (``forced_reason``), the report
+    prints it, and master 1's single-mode curve is checked as before (its peak by shooting); exit 0, no crash.
+    Before: the manifold master's entry was left without a word."""
+    path = _scene(tmp_path)
+    path.write_text(path.read_text().replace('[output]', '[analysis.damping]\nmodal = 0.01\n[analysis.forcing]\n'
+                                             'modal = [0.0001]\nfrequency_range = [0.9, 1.1]\n[output]'))
+    code, out, err = run_verify(capsys, path, "--json", "--amplitudes", "0.5")
+    doc = json.loads(out)
+    modes = {m["index"]: m for m in doc["modes"]}
+    assert code == 0 and modes[0]["forced_reason"] == "not verified: on a manifold of several modes"
+    assert "forced" not in modes[0] and [r["what"] for r in modes[1]["forced"]] == ["peak"]
+    assert "master mode 0: no forced response to check (not verified: on a manifold of several modes)" in \
+        format_report(doc)
