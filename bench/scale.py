@@ -53,7 +53,7 @@ import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "shell_kappa25.toml"
@@ -108,8 +108,14 @@ def _rank() -> int:
     return 0
 
 
-def run_worker(n_core: int, n_ring: int, variant: str, out_dir: Path) -> None:
-    """One run in this process (one rank of it under mpirun); writes ``out_dir/rank<r>.json``."""
+def run_worker(n_core: int, n_ring: int, variant: str, out_dir: Path,
+               build: Callable[[int, int, str], tuple[dict, Path]] | None = None,
+               extra: Callable[[Any], dict] | None = None) -> None:
+    """One run in this process (one rank of it under mpirun); writes ``out_dir/rank<r>.json``.
+
+    ``build(n_core, n_ring, variant)`` gives the scene's TOML data and file (default: this benchmark's cap
+    with the variant's methods); ``extra(result)`` adds facts of the run to the record (key ``extra``).
+    """
     import tomllib
 
     from stepnf.runtime.counters import Counters
@@ -141,11 +147,15 @@ def run_worker(n_core: int, n_ring: int, variant: str, out_dir: Path) -> None:
         object.__setattr__(self, name, value)
 
     Counters.__setattr__ = counting_setattr
-    data = tomllib.loads(SCENE.read_text())
-    data["model"]["geometry"].update({"n_core": n_core, "n_ring": n_ring})
-    data["analysis"]["methods"] = VARIANTS[variant]
-    data["output"] = {"hdf5": False}
-    scene = parse_scene(data, file=SCENE, base_dir=SCENE.parent)
+    if build is None:
+        src, data = SCENE, tomllib.loads(SCENE.read_text())
+        data["model"]["geometry"].update({"n_core": n_core, "n_ring": n_ring})
+        data["analysis"]["methods"] = VARIANTS[variant]
+        data["output"] = {"hdf5": False}
+    else:
+        data, src = build(n_core, n_ring, variant)
+    methods = data["analysis"]["methods"]
+    scene = parse_scene(data, file=src, base_dir=src.parent)
     t0 = time.perf_counter()
     res = run_scene(scene, progress=progress, write=False)
     record = {"rank": _rank(), "n_dofs": res.model["n_dofs"], "total": time.perf_counter() - t0,
@@ -153,7 +163,9 @@ def run_worker(n_core: int, n_ring: int, variant: str, out_dir: Path) -> None:
               "factorization_seconds_in_eigen": in_eigen[0], "peak_rss_mb": memory_now()["peak_rss_mb"],
               "mpi_processes": res.model.get("mpi_processes", 1),
               "gamma": {name: {str(m.label): m.methods[name].gamma for m in res.modes if name in m.methods}
-                        for name in VARIANTS[variant]}}
+                        for name in methods}}
+    if extra is not None:
+        record["extra"] = extra(res)
     (out_dir / f"rank{record['rank']}.json").write_text(json.dumps(record))
 
 
@@ -179,11 +191,11 @@ def mpirun_prefix(ranks: int) -> list[str]:
     return [mpirun, "-n", str(ranks), *extra]
 
 
-def launch(n_core: int, n_ring: int, variant: str, ranks: int, threads: int, timeout: float
-           ) -> list[dict] | str:
-    """Run one size in a fresh process group; the ranks' records, or why there are none."""
+def launch(n_core: int, n_ring: int, variant: str, ranks: int, threads: int, timeout: float,
+           script: str = __file__) -> list[dict] | str:
+    """Run one size in a fresh process group (``script --worker ...``); the ranks' records, or why there are none."""
     with tempfile.TemporaryDirectory(prefix="stepnf_scale_") as tmp:
-        cmd = mpirun_prefix(ranks) + [sys.executable, __file__, "--worker", str(n_core), str(n_ring), variant, tmp]
+        cmd = mpirun_prefix(ranks) + [sys.executable, script, "--worker", str(n_core), str(n_ring), variant, tmp]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 env=child_env(threads), start_new_session=True)
         try:
