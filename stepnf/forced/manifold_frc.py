@@ -1,8 +1,9 @@
 """Frequency-response curves of a master on a manifold of several modes (issue 34 on the manifolds of issue 33).
 
 The steady states are the zeros of :class:`stepnf.forced.manifold_system.ForcedSystem` (damping and forcing at
-leading order in the reduced dynamics; the derivation is there and in docs/design.md, "Forced responses on a
-manifold of several modes"). Each forcing level's curve:
+leading order in the reduced dynamics) with :class:`stepnf.forced.manifold_projection.Projection`'s terms (the
+damping and forcing projected on the manifold, first order in them, every order in A); the derivations are there
+and in docs/design.md, "Forced responses on a manifold of several modes". Each forcing level's curve:
 
 * **main curve**: from the linear response at ``Omega = lo w_j`` (Newton at fixed Omega), pseudo-arclength
   continuation (:func:`stepnf.dpim.multimode.branches.continue_branch`, in the scaled unknowns) until
@@ -15,6 +16,10 @@ manifold of several modes"). Each forcing level's curve:
 * **folds**: where the tangent's Omega component changes sign (Brent's method on it along the chord);
 * **peak**: the largest ``A`` of master ``j`` over the curve, refined by a bounded scalar search along the chord
   through the neighbouring points;
+* **stable peak**: the largest ``A`` over the stable points, refined the same way, or, when that lands on an
+  unstable point, the point where the stability is lost (bisection along the chord); ``peak_stable``, written when
+  it differs from the peak (forcing the higher mode of a 1:2 pair the peak is the uncoupled response's unstable top,
+  which no experiment reaches);
 * **stability**: every eigenvalue of the 2m x 2m real Jacobian with a negative real part.
 
 Amplitudes: ``A`` of each manifold mode's modal coordinate on the orbit (:class:`stepnf.dpim.multimode.measures.
@@ -33,6 +38,7 @@ from stepnf.dpim.multimode.branches import continue_branch
 from stepnf.dpim.multimode.measures import OrbitMeasure, Transverse
 from stepnf.errors import NumericalError, SceneError
 from stepnf.forced.damping import Damping, damping_ratio
+from stepnf.forced.manifold_projection import Projection
 from stepnf.forced.manifold_system import ForcedSystem
 
 #: Largest continuation step (scaled unknowns: the linear peak's |zeta| and the resonance's half-width xi w).
@@ -77,6 +83,10 @@ class ManifoldFRC:
     w_max_h: np.ndarray | None = None
     peak_outside_range: bool = False
     flags: list[str] = field(default_factory=list)
+    #: The largest amplitude over the stable points (as ``peak``, with ``segment``; None when no point is stable):
+    #: the top an experiment sweeping Omega can reach. Forcing the higher mode of a 1:2 pair, ``peak`` is the
+    #: uncoupled response's unstable top and this the pitchfork where it loses its stability.
+    peak_stable: dict[str, Any] | None = None
 
     @property
     def amplitude(self) -> np.ndarray:
@@ -84,7 +94,8 @@ class ManifoldFRC:
 
     def to_json(self) -> dict[str, Any]:
         """:meth:`stepnf.forced.frc.FRC.to_json`'s keys plus ``manifold`` (the modes), ``amplitudes`` ({mode: [A]}),
-        ``branch_points``; ``segment`` when the curve has several pieces."""
+        ``branch_points``; ``segment`` when the curve has several pieces; ``peak_stable`` when it is not ``peak``
+        (None: no stable point)."""
         out: dict[str, Any] = dict(self.level)
         out.update({"Omega": self.Omega.tolist(), "amplitude": self.amplitude.tolist(),
                     "stable": [bool(s) for s in self.stable], "peak": dict(self.peak),
@@ -100,6 +111,8 @@ class ManifoldFRC:
             out["segment"] = self.segment.tolist()
         if self.flags:
             out["flags"] = list(self.flags)
+        if self.peak_stable != self.peak:
+            out["peak_stable"] = None if self.peak_stable is None else dict(self.peak_stable)
         return out
 
 
@@ -134,18 +147,20 @@ def manifold_forced_responses(manifold: Any, damping: Damping, levels: Sequence[
         xi[mode] = damping_ratio(damping.spec, float(w[mode]), master)
     measure = OrbitMeasure(manifold, k)
     phi = np.asarray(manifold.phi, dtype=float).reshape(-1, len(masters))
+    projection = Projection(manifold, damping.K, damping, k, mode)  # (its Grams: once for every level)
     out = []
     for level, value in levels:
-        g = _modal_forces(manifold, phi, value, level, k, mode)
-        system = ForcedSystem(manifold, k, mode, xi, g)
+        g, F = _modal_forces(manifold, phi, value, level, k, mode)
+        system = ForcedSystem(manifold, k, mode, xi, g, projection.forced(F))
         out.append(_one_level(system, measure, level, float(g[mode]), (lo * w[mode], hi * w[mode]), valid_to,
                               transverse, h, masters))
     return out
 
 
-def _modal_forces(manifold: Any, phi: np.ndarray, value: Any, level: dict, k: np.ndarray, mode: int) -> np.ndarray:
-    """``g_l = phi_l^T F`` (m,) with ``F`` turned so the first resonantly forced mode has ``g > 0``; SceneError
-    naming ``analysis.forcing`` when no mode with ``k_l = k_mode`` is forced."""
+def _modal_forces(manifold: Any, phi: np.ndarray, value: Any, level: dict, k: np.ndarray,
+                  mode: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(g, F)``: ``g_l = phi_l^T F`` (m,) with ``F`` (n,) turned so the first resonantly forced mode has ``g > 0``;
+    SceneError naming ``analysis.forcing`` when no mode with ``k_l = k_mode`` is forced."""
     key = "analysis.forcing.modal" if np.ndim(value) == 0 else "analysis.forcing.load"
     if np.ndim(value) == 0:
         kap = float(value)
@@ -163,7 +178,7 @@ def _modal_forces(manifold: Any, phi: np.ndarray, value: Any, level: dict, k: np
         raise SceneError(None, key, f"level {level}: the force excites no mode of the manifold "
                          f"{list(manifold.masters)} resonant with master {manifold.masters[mode]} (phi^T F = "
                          f"{np.round(g, 12).tolist()}): no resonant response at leading order")
-    return g if g[np.flatnonzero(on)[0]] > 0 else -g
+    return (g, F) if g[np.flatnonzero(on)[0]] > 0 else (-g, -F)
 
 
 def _trace(system: ForcedSystem, u0: np.ndarray, direction: np.ndarray, lo: float, hi: float,
@@ -277,6 +292,7 @@ def _one_level(system: ForcedSystem, measure: OrbitMeasure, level: dict, g: floa
                 "amplitudes": {str(q): float(x) for q, x in zip(masters, a)}, "stable": system.stability(u)[0],
                 "w_max_h": None if transverse is None else float(measure.w_max(z, transverse, h))}
     peak, outside = _peak(system, measure, branches, seg, A[:, j], record)
+    top = peak if peak["stable"] else _peak_stable(system, measure, branches, seg, A[:, j], stable, record)
     folds = []
     for s, p in enumerate(branches):
         ends = 1 if s else 0  # a born branch's ends are branch points: no tangent of its own there
@@ -288,14 +304,16 @@ def _one_level(system: ForcedSystem, measure: OrbitMeasure, level: dict, g: floa
     wmh = None if transverse is None else np.array([measure.w_max(z, transverse, h) for z in zeta])
     return ManifoldFRC(level, masters, j, g, Om, zeta, A, stable, A[:, j] <= lim, seg, peak, folds,
                        [record(u) for u in bp_pts], valid_to, float(system.xi[j]), float(system.wd[j]), wmh,
-                       outside, flags)
+                       outside, flags, peak_stable=top)
 
 
-def _peak(system: ForcedSystem, measure: OrbitMeasure, branches: list, seg: np.ndarray, Aj: np.ndarray, record):
-    """The refined largest amplitude of master j and whether it lies at the range's end: a bounded scalar search
-    over the hyperplanes ``t . (u - u_k) = sigma`` (``t`` the tangent at the largest point ``k``) between the
-    neighbours, each trial point corrected onto the curve from the chord on its side."""
-    i = int(np.argmax(Aj))
+def _peak(system: ForcedSystem, measure: OrbitMeasure, branches: list, seg: np.ndarray, Aj: np.ndarray, record,
+          among: np.ndarray | None = None):
+    """The refined largest amplitude of master j (over the points ``among`` when given) and whether it lies at the
+    range's end: a bounded scalar search over the hyperplanes ``t . (u - u_k) = sigma`` (``t`` the tangent at the
+    largest point ``k``) between the neighbours, each trial point corrected onto the curve from the chord on its
+    side."""
+    i = int(np.argmax(Aj if among is None else np.where(among, Aj, -np.inf)))
     s = int(seg[i])
     p = branches[s]
     k = i - int(np.flatnonzero(seg == s)[0])
@@ -320,3 +338,30 @@ def _peak(system: ForcedSystem, measure: OrbitMeasure, branches: list, seg: np.n
     if measure.amplitudes(system.zeta(best))[system.j] < Aj[i]:
         best = uk
     return {**record(best), "segment": s}, False
+
+
+def _peak_stable(system: ForcedSystem, measure: OrbitMeasure, branches: list, seg: np.ndarray, Aj: np.ndarray,
+                 stable: np.ndarray, record) -> dict[str, Any] | None:
+    """The largest amplitude of master j over the stable points (None when there is none), refined as
+    :func:`_peak`; when the refined point is unstable (the stable part's top is where stability is lost: a branch
+    point, a fold), that point by bisection along the chord from the largest stable point to its unstable
+    neighbour of larger A, on the stability of each point corrected onto the curve (to 1e-12 of the chord)."""
+    if not stable.any():
+        return None
+    best, _ = _peak(system, measure, branches, seg, Aj, record, among=stable)
+    if best["stable"]:
+        return best
+    i = int(np.argmax(np.where(stable, Aj, -np.inf)))
+    s = int(seg[i])
+    p, first = branches[s], int(np.flatnonzero(seg == s)[0])
+    k = i - first
+    nb = [q for q in (k - 1, k + 1) if 0 <= q < len(p) and not stable[first + q]]
+    q = max(nb, key=lambda x: Aj[first + x])
+    a, b = 0.0, 1.0  # a: stable side, b: unstable side (fractions of the chord p[k] -> p[q])
+    while b - a > 1e-12:
+        c = 0.5 * (a + b)
+        if system.stability(_on_chord(system, p[k], p[q], c, "stable peak"))[0]:
+            a = c
+        else:
+            b = c
+    return {**record(_on_chord(system, p[k], p[q], a, "stable peak")), "segment": s}

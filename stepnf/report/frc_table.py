@@ -10,7 +10,8 @@ One line per forcing level (``[analysis.forcing]``, :mod:`stepnf.keys.forced`)::
 :func:`stepnf.forced.frc.measured`); ``Omega/w_p`` where it is reached (over the undamped linear frequency);
 ``W_max/h`` there where measured; ``folds``: the number of saddle-node points (jumps); ``valid``: whether the
 peak lies within the backbone's validity range (``no``: the truncated series' number, not a forced response to
-trust). Under a level's line: a peak outside the frequency range, its isolas and what was found and not
+trust). Under a level's line: a peak outside the frequency range, an unstable peak with the largest stable
+amplitude (``peak_stable``, a curve on a manifold of several modes), its isolas and what was found and not
 followed. A master without a curve says why (``n/a``).
 """
 from __future__ import annotations
@@ -69,6 +70,11 @@ def _notes(c: dict[str, Any], w: float = 1.0) -> list[str]:
         out.append(f"branch point(s) at Omega/w_p = {at} (manifold {c.get('manifold')}): coupled branch(es) drawn")
     if c.get("peak_outside_range"):
         out.append("peak outside [analysis.forcing] frequency_range (not on the curve drawn)")
+    if "peak_stable" in c:
+        ps = c["peak_stable"]
+        out.append("peak unstable; no stable point on the curve" if ps is None else
+                   f"peak unstable; stable peak A = {float(ps['amplitude']):.4e} at Omega/w_p = "
+                   f"{float(ps['Omega']) / w:.6f} (segment {int(ps.get('segment', 0))})")
     if c.get("isolas"):
         out.append(f"{int(c['isolas'])} isola(s): closed curve(s) apart from the main one")
     return out + [str(f) for f in c.get("flags") or []]

@@ -25,6 +25,9 @@ get their ``frc_reason``), each level's force ``F`` as the run built it (:func:`
   :data:`STEPS` steps, Aitken's extrapolation (``spread``: how settled); folds are listed as not checked (the
   branch between them is unstable, time integration cannot reach it).
 
+Masters on manifolds of several modes: the same rows from the curves rebuilt on the manifold read back
+(:mod:`stepnf.verify.manifold_forced`).
+
 Each row (the ``forced`` list of the master's entry in verify's JSON): ``level`` (``{"kappa": k}`` or the load's),
 ``what`` (``"peak"`` or ``"fold"``), ``fixed`` (``"Omega"`` or ``"amplitude"``, the quantity imposed on the
 full model; None for continuation), ``rom`` and ``full`` (``{"Omega", "amplitude", "stable"}``, Omega in rad per
@@ -50,6 +53,7 @@ from stepnf.pipeline.forced import forcing_check_stage, levels
 from stepnf.verify.clock import OrbitClock
 from stepnf.verify.forced_check import forced_rows
 from stepnf.verify.forced_orbits import ForcedShooting
+from stepnf.verify.manifold_forced import count_solves, manifold_forced_rows
 
 #: Models up to this many dofs also get the full model's own FRC by continuation: 0, none by default (not cheap:
 #: 323 s for one level of the 2-dof system of tests/verify/test_forced_verify.py over [0.8, 1.3] w, measured).
@@ -183,7 +187,8 @@ def adapted(rows: list[dict], level: dict, curve: dict) -> list[dict]:
 def forced_checks(doc: dict, result: Any, model: Any, adapter: Any, say: Callable[[str], None], *, scene: Any,
                   shooting: bool) -> dict:
     """``doc`` (:func:`stepnf.verify.command.verify_scene`'s) with a ``forced`` list (module docstring) in the entry
-    of every single-mode master whose run has forced responses, ``forced_reason`` in those the run gave none;
+    of every single-mode master whose run has forced responses (a master on a manifold of several modes: the rows of
+    :func:`stepnf.verify.manifold_forced.manifold_forced_rows`), ``forced_reason`` in those the run gave none;
     ``doc`` unchanged without ``[analysis.forcing]``. ``shooting``: the backbone checks' choice (by the model's
     size and tangent)."""
     forcing = getattr(scene, "forcing", None)
@@ -192,11 +197,11 @@ def forced_checks(doc: dict, result: Any, model: Any, adapter: Any, say: Callabl
     entries = {int(m["index"]): m for m in doc["modes"] if "manifold" not in m}
     on_manifolds = {int(m["index"]): m for m in doc["modes"] if "manifold" in m}
     backbones = getattr(result, "backbones", None) or {}
-    plan = []
+    plan, on_plan = [], []
     for j, rec in enumerate(result.modes):
         entry = entries.get(int(rec.index))
-        if int(rec.index) in on_manifolds and rec.frc:  # (stepnf.forced.manifold_frc: no full-model check yet)
-            on_manifolds[int(rec.index)]["forced_reason"] = "not verified: on a manifold of several modes"
+        if int(rec.index) in on_manifolds and rec.frc:  # stepnf.verify.manifold_forced
+            on_plan.append((j, rec, on_manifolds[int(rec.index)]))
             continue
         if entry is None or rec.frc is None:
             continue
@@ -204,7 +209,7 @@ def forced_checks(doc: dict, result: Any, model: Any, adapter: Any, say: Callabl
             entry["forced_reason"] = rec.frc_reason or "no forced response"
             continue
         plan.append((j, rec, entry))
-    if not plan:
+    if not plan and not on_plan:
         return doc
     n = model.K.shape[0]
     damping = run_damping(scene, model, result)
@@ -213,7 +218,8 @@ def forced_checks(doc: dict, result: Any, model: Any, adapter: Any, say: Callabl
     tangent = (lambda u: model_tangent(u).toarray()) if (model_tangent is not None and shooting) else None
     cont = shooting and n <= CONTINUATION_LIMIT
     clock = OrbitClock(sum(1 + cont + (len(c.get("folds", [])) if shooting else 0) for _, r, _ in plan
-                           for c in r.frc), say)  # solves a level: the peak, the folds, the continuation
+                           for c in r.frc) + sum(count_solves(r, shooting) for _, r, _ in on_plan),
+                       say)  # solves a level: the peak, the folds, the continuation
     try:
         C = damping_matrix(damping, n, dense=shooting)
     except NumericalError as exc:
@@ -248,6 +254,18 @@ def forced_checks(doc: dict, result: Any, model: Any, adapter: Any, say: Callabl
                                  "error": f"{tag}, {method}: {' '.join(str(exc).split())}"})
                 finally:
                     clock.stop()
+    for j, rec, entry in on_plan:  # masters on manifolds of several modes (stepnf.verify.manifold_forced)
+        who = f"master mode {rec.index}, forced"
+        if C is None:
+            entry["forced"] = [{"level": level, "what": "peak", "fixed": None, "full": None, "method": "integration",
+                                "rom": {k: float(c["peak"][k]) for k in ("Omega", "amplitude")},
+                                "error": f"{who} {_level_text(level)}: {why}"}
+                               for (level, _), c in zip(values, rec.frc)]
+            continue
+        entry["forced"] = manifold_forced_rows(result, rec, j, model, damping, values, forcing.frequency_range, C,
+                                               adapter.internal_force, adapter.internal_forces, tangent,
+                                               shooting=shooting, clock=clock, who=who, steps=STEPS,
+                                               periods=integration_periods(damping.ratio(j)))
     clock.finish()
     return doc
 
@@ -289,6 +307,11 @@ def forced_lines(doc: dict) -> list[str]:
             dO = f"{r['dOmega']:9.1e}" if "dOmega" in r else f"{'-':>9s}"
             lines.append(f"{left} {full['Omega'] / w:11.8f}{mark('Omega')} {full['amplitude']:11.6g}{mark('amplitude')}"
                          f" {dO} {dA} {st:>6s}  {r['method']}{extra}")
+            others = [(q, a, (full.get("amplitudes") or {}).get(q)) for q, a in (rom.get("amplitudes") or {}).items()
+                      if q != str(m["index"])]  # a manifold's partners (stepnf.verify.manifold_forced)
+            if others:
+                lines.append(" " * 22 + "; ".join(f"mode {q}: ROM A {a:.6g}, full A "
+                                                  + ("-" if b is None else f"{b:.6g}") for q, a, b in others))
     if any(m.get("forced") for m in doc["modes"]):
         lines.append("\nforced: A of q = phi^T M x ((max - min) / 2 over a period); W the forcing's frequency; "
                      "dOmega, dA: ROM / full - 1; stable: the full model's steady state (Floquet; time integration: -)")
