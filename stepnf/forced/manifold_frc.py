@@ -356,6 +356,8 @@ def _peak_stable(system: ForcedSystem, measure: OrbitMeasure, branches: list, se
     p, first = branches[s], int(np.flatnonzero(seg == s)[0])
     k = i - first
     nb = [q for q in (k - 1, k + 1) if 0 <= q < len(p) and not stable[first + q]]
+    if not nb:  # an unstable refined point between stable samples (no unstable neighbour): the best stable sample
+        return {**record(p[k]), "segment": s}
     q = max(nb, key=lambda x: Aj[first + x])
     a, b = 0.0, 1.0  # a: stable side, b: unstable side (fractions of the chord p[k] -> p[q])
     while b - a > 1e-12:
