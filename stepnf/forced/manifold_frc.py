@@ -150,15 +150,15 @@ def manifold_forced_responses(manifold: Any, damping: Damping, levels: Sequence[
     projection = Projection(manifold, damping.K, damping, k, mode)  # (its Grams: once for every level)
     out = []
     for level, value in levels:
-        g, F = _modal_forces(manifold, phi, value, level, k, mode)
+        g, F = modal_forces(manifold, phi, value, level, k, mode)
         system = ForcedSystem(manifold, k, mode, xi, g, projection.forced(F))
         out.append(_one_level(system, measure, level, float(g[mode]), (lo * w[mode], hi * w[mode]), valid_to,
                               transverse, h, masters))
     return out
 
 
-def _modal_forces(manifold: Any, phi: np.ndarray, value: Any, level: dict, k: np.ndarray,
-                  mode: int) -> tuple[np.ndarray, np.ndarray]:
+def modal_forces(manifold: Any, phi: np.ndarray, value: Any, level: dict, k: np.ndarray,
+                 mode: int) -> tuple[np.ndarray, np.ndarray]:
     """``(g, F)``: ``g_l = phi_l^T F`` (m,) with ``F`` (n,) turned so the first resonantly forced mode has ``g > 0``;
     SceneError naming ``analysis.forcing`` when no mode with ``k_l = k_mode`` is forced."""
     key = "analysis.forcing.modal" if np.ndim(value) == 0 else "analysis.forcing.load"

@@ -46,7 +46,7 @@ from stepnf.dpim.multimode.measures import OrbitMeasure
 from stepnf.dpim.multimode.monomials import powers
 from stepnf.errors import AdapterError, NumericalError, SceneError
 from stepnf.forced.damping import Damping
-from stepnf.forced.manifold_frc import manifold_forced_responses
+from stepnf.forced.manifold_frc import manifold_forced_responses, modal_forces
 from stepnf.verify.forced_orbits import ForcedShooting
 from stepnf.verify.forced_steady import ForcedIntegration
 from stepnf.verify.manifold_chart import manifold_of
@@ -71,22 +71,6 @@ def start_state(man: Any, zeta: np.ndarray, r: np.ndarray, Omega: float) -> tupl
     P = powers(z[None, :], keys)[0]
     Wm = np.asarray([man.W[a] for a in keys])
     return (P @ Wm).real, ((P * rate) @ Wm).real
-
-
-def modal_sign(phi: np.ndarray, F: np.ndarray, k: np.ndarray, mode: int) -> float:
-    """The sign the curves gave ``F`` (:func:`stepnf.forced.manifold_frc.manifold_forced_responses` turns it so the
-    first resonantly forced mode has ``phi^T F > 0``)."""
-    g = phi.T @ F
-    on = np.flatnonzero((k == k[mode]) & (np.abs(g) > 1e-12 * max(float(np.abs(g).max()), 1e-300)))
-    return -1.0 if len(on) and g[on[0]] < 0 else 1.0
-
-
-def force_of(man: Any, value: Any, mode: int) -> np.ndarray:
-    """The level's force ``F`` (n,): ``kappa M phi_mode`` or the load's vector."""
-    phi = np.asarray(man.phi, dtype=float).reshape(-1, len(man.masters))
-    if np.ndim(value) == 0:
-        return float(value) * np.asarray(man.M @ phi[:, mode], dtype=float).ravel()
-    return np.asarray(value, dtype=float)
 
 
 def point_zeta(curve: Any, p: dict) -> np.ndarray:
@@ -172,8 +156,7 @@ def manifold_forced_rows(result: Any, rec: Any, j: int, model: Any, damping: Dam
                          "rom": {k_: float(stored["peak"][k_]) for k_ in ("Omega", "amplitude")},
                          "error": f"{who}: {why}"})
             continue
-        F = force_of(man, value, mode)
-        F = modal_sign(phi, F, k, mode) * F
+        F = modal_forces(man, phi, value, level, k, mode)[1]  # turned as the curves turned it
         points = [("peak", curve.peak)] + [("fold", f) for f in sorted(curve.folds, key=lambda f: f["Omega"])
                                            if f.get("in_range", True)]
         for what, p in points:
