@@ -220,6 +220,14 @@ def mumps_ksp(P, *, symmetric: bool):
     (INFOG(7) = 4; METIS and SCOTCH are not built in, AMF measured no faster nor smaller at 112k dofs,
     AMD and QAMD 4% more factor entries). (An ICNTL(7) set on the factor matrix before the set-up was
     not applied by PETSc 3.18: only the options database ``-mat_mumps_icntl_7`` is.)
+
+    A METIS nested dissection is not used: PETSc (3.18 to 3.22) hands no ordering to MUMPS's LDL^T
+    (``MatCholeskyFactorSymbolic_MUMPS`` ignores PCFactor's ordering; ``-mat_mumps_icntl_7 1`` is
+    refused; only LU takes one), and given to MUMPS directly as PERM_IN (pymetis 2025.2.2 on the
+    graph of equal-pattern dof groups, weighted, 3 separators) it was no better than PORD on the
+    hex27 cap's ``K - sigma M`` (issue 35): factor entries +10% / +3% / +6% and factorisation
+    memory (INFOG(22)) +10% / +6% / +8% at 38k / 250k / 1M dofs, flops +9% / -21% / -8%, numeric
+    factorisation time within the noise (1M: 56-66 s either way, one thread).
     """
     from petsc4py import PETSc
 
