@@ -180,7 +180,9 @@ def test_one_to_two_coupled_branches_against_shooting():
             assert omega_at(man, b, A) == pytest.approx(ref, rel=1e-5, abs=0)
     assert min(shifts) > 0.05
     [up] = [b for b in backbone_branches(man, 1, 0.5, tol=None) if b.kind == "continues mode 1"]
-    assert np.abs(up.zeta[:, 0]).max() == 0 and not up.stable.any()
+    # zeta_0 = 0 up to round-off (x1 = 0 is invariant: the SVD's tangent mixes the decoupled blocks at ~1e-16,
+    # Newton takes it back to ~1e-32 of |zeta_1| ~ 0.25; measured 1.2e-32)
+    assert np.abs(up.zeta[:, 0]).max() < 1e-30 and not up.stable.any()
 
 
 # ----------------------------------------------------- (c) 1:1 symmetric pair
@@ -316,6 +318,38 @@ def test_near_one_to_two_branch_point():
     for b in (own, born):
         assert b.valid_A is None or b.valid_A > 0.15  # None: valid over the whole branch traced
         assert omega_at(man, b, 0.15) == pytest.approx(shooting_omega(sh, man, b, 0.15), rel=1e-5, abs=0)
+
+
+def test_fold_of_omega_in_a_model_s_units():
+    """Near 1:2 above (w2 = 2.03 w1 = 2030 rad/s, a quadratic coupling and a hardening cubic ``5 x1^3``, order 11) in
+    a model's units: displacements 1e-4 (A = 0.3 is 3e-5 m) and w1 = 1000 rad/s, as the kappa = 25 cap's (zeta ~
+    1e-4 m, Omega ~ 7.6e3 rad/s). The coupling softens, the cubic hardens: Omega of the branch that continues mode 0
+    has a minimum near A = 0.2 (the full model's too: 0.998269, 0.998166, 0.998259 w1 at A = 0.15, 0.2, 0.25).
+    The continuation's arclength was Euclidean in (zeta, Omega): Omega alone set it and the steps were steps in
+    Omega, which do not pass a fold of Omega; here the trace turned back at A = 0.115 (to zeta ~ 1e-170, four
+    spurious branch points, validity 0.083), on the cap (order 5 of (2,1) with (4,1)) the corrector jumped past the
+    maximum of Omega to another part of the branch (A 2.9e-4 -> 1.1e-3, the points between lost) and point_at's
+    chord then crossed no branch ("Newton failed between points 42 and 43"). Scaled unknowns (zeta / its size,
+    Omega / w): the branch passes the minimum, the same as in units of order one to 1e-12 (measured 1.1e-16), valid
+    (1e-5, orders 9 and 11) to A = 0.204, and against shooting within 1e-5 at A = 0.15 and 0.2 (measured 5.5e-8
+    and 1.6e-6; shooting exact to ~1e-12)."""
+    L, T, w2 = 1e-4, 1e-3, 2.03
+    K1 = np.diag([1.0, w2 ** 2])
+    f1 = batch_force(K1, sym((2, 2, 2), {(0, 0, 1): 1.0}), sym((2, 2, 2, 2), {(0, 0, 0, 0): 5.0}))
+    f, K, M = (lambda x: f1(x / L) * L / T ** 2), K1 / T ** 2, np.eye(2)
+    man = parametrise_manifold(DPIM(f, K, M), [0, 1], np.eye(2), np.array([1.0, w2]) / T, 11, probe=L)
+    [b] = [b for b in backbone_branches(man, 0, 0.3 * L, tol=1e-5) if b.kind == "continues mode 0"]
+    assert b.A[-1, 0] >= 0.3 * L and np.all(np.diff(b.A[:, 0]) > 0) and b.stable.all() and not b.branch_points
+    assert b.valid_reason == "orders differ" and 0.2 * L < b.valid_A < 0.25 * L
+    one = parametrise_manifold(DPIM(f1, K1, M), [0, 1], np.eye(2), np.array([1.0, w2]), 11, probe=1.0)
+    [b1] = [b for b in backbone_branches(one, 0, 0.3, tol=None) if b.kind == "continues mode 0"]
+    sh = Shooting(M, K, lambda x: f(x[None])[0], np.array([1.0, 0.0]), 1.0 / T)
+    Om = {A: omega_at(man, b, A * L) * T for A in (0.1, 0.15, 0.2, 0.25)}
+    assert Om[0.15] > Om[0.2] < Om[0.25]  # a minimum of Omega
+    for A in Om:
+        assert Om[A] == pytest.approx(omega_at(one, b1, A), rel=1e-12, abs=0)  # the units change nothing
+    for A in (0.15, 0.2):
+        assert Om[A] == pytest.approx(shooting_omega(sh, man, b, A * L) * T, rel=1e-5, abs=0)
 
 
 # ------------------------------------------------------- (f) exact 1:3, cubic

@@ -12,9 +12,17 @@ same start, and the largest ``A`` below which ``|k_j Omega_N(A) - k_j Omega_{N-2
 (``Omega_{N-2}`` at the same A by cubic interpolation of its points), and where the terms of orders N - 1 and N
 stay within ``sqrt(tol)`` of the whole field (M-norm, largest over the period, at the same point: the single-mode
 shape test, :meth:`stepnf.dpim.backbone.Backbone.validity_limit`).
+
+Units: the continuation and the chords of :func:`omega_at` work in scaled unknowns (:func:`_scaled`: ``zeta`` over
+its size, ``Omega`` over the master's linear fundamental), so that a branch is traced the same in any units. In a
+model's own (metres and rad/s: zeta ~ 1e-4, Omega ~ 7.6e3 on the kappa = 25 cap) a Euclidean arclength in
+``(zeta, Omega)`` is Omega's alone: the steps were steps in Omega, which cannot pass a fold of Omega (the backbone
+bending back), and the corrector jumped past it to another part of the branch or turned back (issue 33, order 5
+of the cap's (2,1) with (4,1)).
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -31,6 +39,28 @@ def _u(b: Branch, i: int) -> np.ndarray:
     return np.concatenate([z.real, z.imag, [b.Omega[i], b.eps[i]]])
 
 
+def _scaled(system: ReducedSystem, a: float, b: float) -> tuple[ReducedSystem, np.ndarray]:
+    """The same equations in the unknowns ``x = u / D``, ``D = (a, .., a, b, b)`` (``zeta / a``, ``Omega / b``,
+    ``eps / b``): the reduced dynamics of ``zeta / a`` in the time ``b t`` (coefficients ``c a^(|alpha| - 1) / b``,
+    frequencies ``omega / b``), so the scaled system's residual is ``G / (a b)`` and its stability the same.
+    The continuation's arclength, its tangent and the chord's hyperplane (:func:`point_at`) are Euclidean in ``u``:
+    in a model's units (zeta ~ 1e-4 m, Omega ~ 7.6e3 rad/s on the kappa = 25 cap) Omega alone would set them,
+    the steps would be steps in Omega, and a fold of Omega (the backbone bending back) would be jumped over
+    (module docstring, "Units"). ``(system, D)``."""
+    deg = system.E.sum(axis=1)
+    f = {(int(i), tuple(int(t) for t in e)): complex(c) * a ** (int(d) - 1) / b
+         for i, e, c, d in zip(system.eq, system.E, system.c, deg)}
+    ns = SimpleNamespace(omega=system.omega / b, f=f, ratios=system.k)
+    m = system.m
+    return ReducedSystem(ns, system.k), np.concatenate([np.full(2 * m, a), [b, b]])
+
+
+def _units(system: ReducedSystem, mode: int, zeta_size: float) -> tuple[ReducedSystem, np.ndarray]:
+    """:func:`_scaled` with ``a = zeta_size`` and ``b = omega_mode / k_mode`` (the master's linear fundamental)."""
+    b = float(system.omega[mode]) / float(system.k[mode])
+    return _scaled(system, max(float(zeta_size), np.finfo(float).tiny), b)
+
+
 def trace(system: ReducedSystem, measure: OrbitMeasure, u0: np.ndarray, kind: str, mode: int, masters,
           A_stop: float, *, max_points: int = 400, transverse: Transverse | None = None,
           h: float = 1.0) -> Branch:
@@ -44,7 +74,9 @@ def trace(system: ReducedSystem, measure: OrbitMeasure, u0: np.ndarray, kind: st
         return bool(A[mode] >= A_stop or A.max() >= 10 * A_stop or not 0 < u[2 * m] < 3 * wmax)
     direction = np.zeros(2 * m + 2)
     direction[mode] = 1.0
-    pts, bps = continue_branch(system, u0, direction=direction, stop=stop, max_points=max_points)
+    # each step in units of its point (_scaled): zeta / |zeta|, Omega / the linear fundamental; steps <= ~10%
+    pts, bps = continue_branch(system, u0, direction=direction, stop=stop, max_points=max_points,
+                               units=lambda u: _units(system, mode, float(np.abs(u[:2 * m]).max())))
     if len(pts) > 1 and not pts[-1, 2 * m] > 0:  # the point that stopped the trace at Omega <= 0: no orbit
         pts, bps = pts[:-1], [i for i in bps if i < len(pts) - 2]
     zeta = np.asarray([normalise_phase(system, u[:m] + 1j * u[m:2 * m], mode) for u in pts])
@@ -105,14 +137,19 @@ def point_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> 
                              f"on it (A from {Aj.min():.6g} to {Aj.max():.6g})")
     i = int(hit[0])
     u0, u1 = _u(branch, i), _u(branch, i + 1)
-    chord = u1 - u0
+    # the chord and its hyperplanes in units of the two points' size (_scaled: not Omega's alone)
+    scaled, D = _units(system, j, max(float(np.abs(u0[:2 * m]).max()), float(np.abs(u1[:2 * m]).max())))
+    x0 = u0 / D
+    chord = u1 / D - x0
 
     def on_branch(s: float) -> np.ndarray:
-        p = u0 + s * chord
-        done = system.correct(p, lambda v: (float(chord @ (v - p)), chord), p[:m] + 1j * p[m:2 * m])
+        p = x0 + s * chord
+        done = scaled.correct(p, lambda v: (float(chord @ (v - p)), chord), p[:m] + 1j * p[m:2 * m])
         if done is None:
-            raise NumericalError(f"backbone branch: Newton failed between points {i} and {i + 1}")
-        return done[0]
+            raise NumericalError(f"backbone branch ({branch.kind}): Newton failed between points {i} and {i + 1} "
+                                 f"(A = {Aj[i]:.6g} and {Aj[i + 1]:.6g}, Omega = {u0[2 * m]:.6g} and "
+                                 f"{u1[2 * m]:.6g}): no point of the branch near their chord at s = {s:.3g}")
+        return done[0] * D
 
     def g(s: float) -> float:
         u = on_branch(s)

@@ -194,10 +194,12 @@ class ReducedSystem:
     def correct(self, u: np.ndarray, extra: Callable[[np.ndarray], tuple[float, np.ndarray]], ref: np.ndarray,
                 maxiter: int = 12) -> tuple[np.ndarray, int] | None:
         """Newton on ``[G; phase; extra(u)]`` from ``u`` (``extra(u) -> (value, gradient)``): ``(u, iterations)``
-        or None when it does not converge (to 1e-13 relative in u and 1e-12 of the equations' scale)."""
+        or None when it does not converge (to 1e-12 of the equations' scale, and a last step of 1e-13 relative in
+        u or, once the steps stop shrinking, at the round-off of an ill-conditioned Jacobian, below 1e-9)."""
         m = self.m
         P = self.phase_row(ref)
         scale = float(self.omega.max()) * max(float(np.abs(u[:2 * m]).max()), 1e-300)
+        last = np.inf
         for it in range(1, maxiter + 1):
             val, grad = extra(u)
             r = np.concatenate([self.residual(u), [P @ u, val]])
@@ -209,9 +211,11 @@ class ReducedSystem:
             if not np.all(np.isfinite(du)):
                 return None
             u = u + du
-            if np.abs(du).max() <= 1e-13 * max(1.0, float(np.abs(u).max())) and \
+            step, size = float(np.abs(du).max()), max(1.0, float(np.abs(u).max()))
+            if (step <= 1e-13 * size or (step >= 0.5 * last and step <= 1e-9 * size)) and \
                     np.abs(self.residual(u)).max() <= 1e-12 * scale:
                 return u, it
+            last = step
         return None
 
     def tangent(self, u: np.ndarray, ref: np.ndarray, prev: np.ndarray | None) -> np.ndarray:
@@ -225,42 +229,57 @@ class ReducedSystem:
 
 def continue_branch(system: ReducedSystem, u0: np.ndarray, *, direction: np.ndarray | None = None,
                     stop: Callable[[np.ndarray], bool] | None = None, max_points: int = 400,
-                    h0: float | None = None, h_max: float | None = None) -> tuple[np.ndarray, list[int]]:
+                    h0: float | None = None, h_max: float | None = None,
+                    units: Callable[[np.ndarray], tuple[Any, np.ndarray]] | None = None
+                    ) -> tuple[np.ndarray, list[int]]:
     """Pseudo-arclength continuation from the solution ``u0`` (module docstring): the points (K, 2m + 2) and
     the branch points. ``direction``: the first tangent is oriented along it; ``stop(u)`` ends the branch
     after the first point where it is True; ``h0``, ``h_max`` the first and largest steps (default
-    1e-2 and 0.1 of the first point's size |u|)."""
+    0.1 of the first point's size |zeta| and 0.05 max(omega_max, size)). ``units(u) -> (scaled system, D)``: each
+    step is taken in the unknowns ``x = u / D`` of the point it starts from (D > 0; the scaled system's equations
+    in x): the steps, the tangent and the corrector's hyperplane in units relative to that point (a Euclidean
+    arclength in a model's own units is its largest unknown's alone: :func:`stepnf.dpim.multimode.backbone._scaled`);
+    ``h0``, ``h_max``, ``direction`` then in those units. None: in ``u`` itself. The points are returned in u."""
     m = system.m
-    size = float(np.abs(u0[:2 * m]).max())
+    S, D = units(u0) if units is not None else (system, None)
+    x0 = u0 if D is None else u0 / D
+    size = float(np.abs(x0[:2 * m]).max())
     h = 0.1 * size if h0 is None else h0
-    h_max = max(h, 0.05 * max(float(system.omega.max()), size)) if h_max is None else h_max
+    h_max = max(h, 0.05 * max(float(S.omega.max()), size)) if h_max is None else h_max
     pts, bps = [u0], []
-    t = system.tangent(u0, u0[:m] + 1j * u0[m:2 * m], direction)
+    t = S.tangent(x0, x0[:m] + 1j * x0[m:2 * m], direction)
     det_prev = None
     while len(pts) < max_points:
         u = pts[-1]
-        ref = u[:m] + 1j * u[m:2 * m]
+        if D is not None:  # the point's own units; the tangent (a direction in u) carried over
+            t_u = t * D
+            S, D = units(u)
+            t = t_u / D
+            t /= np.linalg.norm(t)
+        x = u if D is None else u / D
+        ref = x[:m] + 1j * x[m:2 * m]
         done = None
         while h >= 1e-10 * max(size, 1e-300):
-            pred = u + h * t
-            done = system.correct(pred, lambda v, p=pred, d=t: (float(d @ (v - p)), d), ref)
-            if done is not None and float(np.dot(done[0] - u, t)) > 0:
+            pred = x + h * t
+            done = S.correct(pred, lambda v, p=pred, d=t: (float(d @ (v - p)), d), ref)
+            if done is not None and float(np.dot(done[0] - x, t)) > 0:
                 break
             done = None
             h *= 0.5
         if done is None:
             break
         new, its = done
-        t_new = system.tangent(new, new[:m] + 1j * new[m:2 * m], t)
-        det = np.linalg.det(np.vstack([system.jacobian(new), system.phase_row(new[:m] + 1j * new[m:2 * m]), t_new]))
+        t_new = S.tangent(new, new[:m] + 1j * new[m:2 * m], t)
+        # (its sign does not depend on the units D > 0 when t is the tangent in them: the same in every step)
+        det = np.linalg.det(np.vstack([S.jacobian(new), S.phase_row(new[:m] + 1j * new[m:2 * m]), t_new]))
         if det_prev is not None and np.sign(det) != np.sign(det_prev):
             bps.append(len(pts) - 1)
         det_prev = det
-        pts.append(new)
+        pts.append(new if D is None else new * D)
         t = t_new
         if its <= 3:
             h = min(1.5 * h, h_max)
-        if stop is not None and stop(new):
+        if stop is not None and stop(pts[-1]):
             break
     return np.asarray(pts), bps
 
