@@ -1,4 +1,4 @@
-"""Issue 33 item 5, 3D side: (2,1) and (0,2) of the kappa = 25 cap on 1:2 manifolds, checked against the full model.
+"""Issue 33 item 5, 3D side: (2,1), (0,2), (4,0) of the kappa = 25 cap on 1:2 manifolds, against the full model.
 
 The scene is ``examples/shell_kappa25.toml`` (38k dofs, hex27, FEniCSx) with ``methods = ["dnf"]``, one master and
 ``[analysis.backbone] order = 7, manifolds = [[master, partner]]``, reported at ``w_over_h`` = 0.05 .. 1.0:
@@ -11,11 +11,17 @@ The scene is ``examples/shell_kappa25.toml`` (38k dofs, hex27, FEniCSx) with ``m
   four-fold symmetry lets n = 8 see n = 0), 0.2 for (2,2), against 2.2e10 for (0,3); with their small denominators
   (0.033, 0.047 against 0.118) (0,3)'s term is still ~360 times (8,0)'s. Measured by ``--coupling``
   (G(phi, phi) = (f(a phi) + f(-a phi)) / (2 a^2), exact for St Venant-Kirchhoff; the modes oriented as a run's);
-* ``m21o5``, ``m02o5``: the same manifolds at order 5;
-* ``m21x``, ``s02x``: beyond the validity limits (below), started from (2,1)'s manifold and from (0,2)'s
-  single-mode parametrisation (its manifold with (0,3) ends at W_max/h = 0.446, so ``m02``'s own are empty);
+* ``m40``: (4,0) on [(4,0), (0,2)] (mode 5, the lower of the (4,0) twins 5, 6, with mode 13, w13/w5 = 1.903,
+  within the default tolerance 0.05 as on the von Karman model; G(phi_5, phi_5) . phi_13 = 1.9e9, the other modes
+  with w_s / w_5 in (1.5, 2.5) at most 3e-2, i.e. nothing; the twin 6 the same 1.9e9);
+* ``m21o5``, ``m02o5``, ``m40o5``: the same manifolds at order 5;
+* ``m21x``, ``s02x``, ``m40x``: beyond the validity limits (below), started from (2,1)'s and (4,0)'s manifolds and
+  from (0,2)'s single-mode parametrisation (its manifold with (0,3) ends at W_max/h = 0.446, so ``m02``'s own are
+  empty);
 * ``single``, ``single9``: the single-mode backbones of (2,1) and (0,2) at the same order and ``w_over_h``, and at
   order 9 (beyond their validity limits: the parity swing of docs/backbone/kappa25.md).
+  ``single40``, ``single40o9``: (4,0)'s single-mode backbone at orders 7 and 9 (separate runs, so that the
+  stored numbers of ``single`` and ``single9`` stay those measured).
 
 A manifold run then checks the master's continuing branch against the full model's orbits (time integration, 3
 periods, Richardson; :func:`stepnf.verify.manifold_orbits.manifold_checks`, the code of ``stepnf verify``) at two
@@ -53,6 +59,7 @@ VERIFY_FRACTIONS = (0.5, 0.95)
 VERIFY_TOP = 0.5
 M21 = {"manifolds": [["(2,1)", "(4,1)"]]}
 M02 = {"manifolds": [["(0,2)", "(0,3)"]], "resonance": 0.08}
+M40 = {"manifolds": [["(4,0)", "(0,2)"]]}
 RUNS = {
     "m21": {"masters": ["(2,1)"], "backbone": M21, "verify": True},
     "m02": {"masters": ["(0,2)"], "backbone": M02, "verify": True, "beyond": [0.7, 1.0]},
@@ -62,6 +69,11 @@ RUNS = {
     "s02x": {"masters": ["(0,2)"], "backbone": {}, "verify": False, "beyond_single": [0.7, 1.0]},
     "single": {"masters": ["(2,1)", "(0,2)"], "backbone": {}, "verify": False},
     "single9": {"masters": ["(2,1)", "(0,2)"], "backbone": {"order": 9}, "verify": False},
+    "m40": {"masters": ["(4,0)"], "backbone": M40, "verify": True},
+    "m40o5": {"masters": ["(4,0)"], "backbone": M40 | {"order": 5}, "verify": False},
+    "m40x": {"masters": ["(4,0)"], "backbone": M40, "verify": False, "beyond": [0.7]},
+    "single40": {"masters": ["(4,0)"], "backbone": {}, "verify": False},
+    "single40o9": {"masters": ["(4,0)"], "backbone": {"order": 9}, "verify": False},
 }
 
 
@@ -265,8 +277,13 @@ def trajectories(row: dict, targets: list, say, integrate, what: str, start: str
     return out
 
 
+#: The masters whose couplings ``--coupling`` measures: (2,1) and (0,2) (modes 11, 13), and every mode labelled (4,0)
+#: (both twins: the O-grid may split them; a scene's "(4,0)" names the lower one).
+COUPLING_MASTERS = ((2, 1), (0, 2), (4, 0))
+
+
 def coupling() -> dict:
-    """G(phi_p, phi_p) . phi_s of the masters (2,1) and (0,2) (modes 11, 13) against every mode with w_s / w_p in
+    """G(phi_p, phi_p) . phi_s of the masters :data:`COUPLING_MASTERS` against every mode with w_s / w_p in
     (1.5, 2.5), the modes oriented as a run's (:func:`stepnf.pipeline.modes.modes_stage`'s twins)."""
     import numpy as np
 
@@ -289,7 +306,9 @@ def coupling() -> dict:
                                                                   model.dirs))
         labels = pm.ModeLabels(adapter).of(basis)
         phi, om, a, out = basis.phi, basis.omega, 1e-3, {}
-        for p in (11, 13):
+        hits = {k: [s for s, lab in enumerate(labels) if lab is not None and tuple(lab) == k] for k in COUPLING_MASTERS}
+        masters = [s for k, ss in hits.items() for s in (ss if k == (4, 0) else ss[:1])]
+        for p in masters:
             F = adapter.internal_forces(np.stack([a * phi[:, p], -a * phi[:, p]]))
             g = phi.T @ ((F[0] + F[1]) / (2 * a * a))
             out[str(p)] = {"label": list(labels[p]), "partners": [
