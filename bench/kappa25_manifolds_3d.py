@@ -151,7 +151,9 @@ def mode_row(m: dict) -> dict:
     return row
 
 
-def child(name: str) -> dict:
+def child(name: str, verify: bool = True) -> dict:
+    """One run in this process: the scene, its measured rows, and with ``verify`` the full model's checks the run
+    asks for (its ``"verify"`` orbits, its ``beyond`` trajectories)."""
     import resource
 
     import numpy as np
@@ -180,6 +182,8 @@ def child(name: str) -> dict:
         (RAW / f"{name}_run.json").write_text(json.dumps(doc, indent=1, default=str))
         say(f"{name}: run {out['run_seconds']} s, peak {out['run_peak_rss_mb']} MB")
         row = out["modes"][0]
+        if not verify:
+            return out
         if RUNS[name].get("beyond_single"):
             out["beyond"] = beyond_single(result, model, adapter, row, RUNS[name]["beyond_single"], say)
         if RUNS[name].get("beyond"):
@@ -320,10 +324,11 @@ def coupling() -> dict:
         adapter.close()
 
 
-def run(name: str) -> dict:
+def run(name: str, verify: bool = True) -> dict:
     RAW.mkdir(parents=True, exist_ok=True)
     with open(RAW / f"{name}.err", "w") as err:
-        p = subprocess.run([sys.executable, __file__, "--child", name], stdout=subprocess.PIPE, stderr=err,
+        p = subprocess.run([sys.executable, __file__, "--child", name] + ([] if verify else ["--no-verify"]),
+                           stdout=subprocess.PIPE, stderr=err,
                            text=True, env=dict(os.environ), cwd=ROOT)
     if p.returncode:
         raise SystemExit(f"{name} failed (stderr in {RAW / name}.err)")
@@ -335,9 +340,13 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", choices=list(RUNS), default=list(RUNS))
     ap.add_argument("--child", choices=list(RUNS))
     ap.add_argument("--coupling", action="store_true", help="measure the quadratic couplings (partners) first")
+    ap.add_argument("--no-verify", action="store_true",
+                    help="rerun the scenes only, no full-model checks: a run's stored verify and beyond records "
+                         "are kept, marked as from its earlier build (for a change that moves no point where "
+                         "they were checked)")
     args = ap.parse_args()
     if args.child:
-        print(json.dumps(child(args.child), default=str))
+        print(json.dumps(child(args.child, verify=not args.no_verify), default=str))
         return
     doc = json.loads(OUT.read_text()) if OUT.exists() else {}
     doc.update({"scene": "examples/shell_kappa25.toml, methods = [dnf], order 7, w_over_h 0.05 .. 1.0",
@@ -355,12 +364,19 @@ def main() -> None:
                 m["branch_end_w_over_h"] = branch_end(m)
                 if m["valid_up_to_w_over_h"] is None and m["valid_reason"] == "amplitude folds":
                     m["valid_up_to_w_over_h"] = m["branch_end_w_over_h"]
+    done: list[str] = []  # the runs of this invocation
     for name in args.only:
         load = [round(x, 2) for x in os.getloadavg()]
-        r = run(name)
+        r = run(name, verify=not args.no_verify)
         r["load_average_before"] = load
-        if OUT.exists():  # runs another invocation wrote meanwhile are kept
-            doc["runs"] = json.loads(OUT.read_text()).get("runs", {}) | doc["runs"]
+        if OUT.exists():  # runs another invocation wrote meanwhile are kept (this one's own override them)
+            doc["runs"] = json.loads(OUT.read_text()).get("runs", {}) | {k: doc["runs"][k] for k in done}
+        old = doc["runs"].get(name, {})
+        done.append(name)
+        kept = {k: v for k, v in old.items() if k.startswith("verify") or k == "beyond"} if args.no_verify else {}
+        if kept:
+            r.update(kept)
+            r["checks_from_earlier_build"] = sorted(kept)
         doc["runs"][name] = r
         OUT.parent.mkdir(parents=True, exist_ok=True)
         OUT.write_text(json.dumps(doc, indent=1) + "\n")
