@@ -16,8 +16,10 @@ The scene is ``examples/shell_kappa25.toml`` (38k dofs, hex27, FEniCSx) with ``m
   with w_s / w_5 in (1.5, 2.5) at most 3e-2, i.e. nothing; the twin 6 the same 1.9e9);
 * ``m21o5``, ``m02o5``, ``m40o5``: the same manifolds at order 5;
 * ``m21x``, ``s02x``, ``m40x``: beyond the validity limits (below), started from (2,1)'s and (4,0)'s manifolds and
-  from (0,2)'s single-mode parametrisation (its manifold with (0,3) ends at W_max/h = 0.446, so ``m02``'s own are
-  empty);
+  from (0,2)'s single-mode parametrisation (run when its manifold seemed to end at W_max/h = 0.446: an artefact of
+  the continuation in the model's units, fixed since; ``m02``'s own ``beyond`` were not rerun);
+* ``m02m``: ``m02`` verified once near its w_NL/w minimum (0.92 of the amplitude at W_max/h = 0.65, inside its
+  validity limit 0.677);
 * ``single``, ``single9``: the single-mode backbones of (2,1) and (0,2) at the same order and ``w_over_h``, and at
   order 9 (beyond their validity limits: the parity swing of docs/backbone/kappa25.md).
   ``single40``, ``single40o9``: (4,0)'s single-mode backbone at orders 7 and 9 (separate runs, so that the
@@ -70,6 +72,8 @@ RUNS = {
     "single": {"masters": ["(2,1)", "(0,2)"], "backbone": {}, "verify": False},
     "single9": {"masters": ["(2,1)", "(0,2)"], "backbone": {"order": 9}, "verify": False},
     "m40": {"masters": ["(4,0)"], "backbone": M40, "verify": True},
+    # (0,2) near its w_NL/w minimum (W_max/h ~ 0.59, inside the limit 0.677 of the scaled continuation)
+    "m02m": {"masters": ["(0,2)"], "backbone": M02, "verify": True, "verify_top": 0.65, "verify_fractions": (0.92,)},
     "m40o5": {"masters": ["(4,0)"], "backbone": M40 | {"order": 5}, "verify": False},
     "m40x": {"masters": ["(4,0)"], "backbone": M40, "verify": False, "beyond": [0.7]},
     "single40": {"masters": ["(4,0)"], "backbone": {}, "verify": False},
@@ -191,9 +195,10 @@ def child(name: str, verify: bool = True) -> dict:
         if not RUNS[name]["verify"]:
             return out
         grid_a = [(a, w) for a, w in zip(row["amplitude"], GRID) if a is not None]
-        a_top = float(np.interp(VERIFY_TOP, [w for _, w in grid_a], [a for a, _ in grid_a]))
+        top, fractions = RUNS[name].get("verify_top", VERIFY_TOP), RUNS[name].get("verify_fractions", VERIFY_FRACTIONS)
+        a_top = float(np.interp(top, [w for _, w in grid_a], [a for a, _ in grid_a]))
         cap = min(a_top, row["valid_up_to_A"] or a_top)
-        amps = [f * cap for f in VERIFY_FRACTIONS]
+        amps = [f * cap for f in fractions]
         out["verify_amplitudes"] = amps
         out["verify_w_over_h"] = [w_over_h_at(doc["modes"][0]["backbone"], a) for a in amps]
         out["verify_command"] = (f"stepnf verify --amplitudes {' '.join(f'{a:.6g}' for a in amps)} --json "
