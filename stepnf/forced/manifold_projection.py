@@ -41,6 +41,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from stepnf.dpim.multimode.monomials import values_and_partials
+
 #: The parametrisation's order the projection uses (module docstring: its truncation is 1e-4 of the peak).
 PROJECTION_ORDER = 5
 #: Central-difference step of :meth:`Projection.derivatives` relative to the amplitude scale (the correction is
@@ -59,13 +61,12 @@ class Projection:
         man = manifold.truncated(min(int(order), int(manifold.order)))
         keys = sorted(man.W)
         self.E = np.asarray(keys, dtype=int)  # (T, 2m)
-        self.low = np.maximum(self.E - 1, 0)
         W = np.asarray([man.W[a] for a in keys], dtype=complex)
         V = np.asarray([man.V[a] for a in keys], dtype=complex)
-        KW, MV = np.asarray(K @ W.T).T, np.asarray(manifold.M @ V.T).T
-        CV = np.asarray(C(V.real)) + 1j * np.asarray(C(V.imag))
         if K is None:
             raise ValueError("the projected damping and forcing need the stiffness K (the energy inner product)")
+        KW, MV = np.asarray(K @ W.T).T, np.asarray(manifold.M @ V.T).T
+        CV = np.asarray(C(V.real)) + 1j * np.asarray(C(V.imag))
         self.H = W.conj() @ KW.T + V.conj() @ MV.T  # (T, T) the energy Gram of the coefficients
         self.GC = V.conj() @ CV.T  # (T, T)
         self.V, self.j = V, int(j)
@@ -101,15 +102,7 @@ class Projection:
         -k)``: the Gram's products are grouped by the harmonic ``s`` (one T x T product per evaluation, not one per
         point) and the ``e^{i sigma theta}`` factors cancel in ``r_l e^{-i k_l theta}``."""
         m, T = self.m, len(self.E)
-        zt = np.concatenate([zeta, np.conj(zeta)])
-        pw = zt[:, None] ** np.arange(int(self.E.max()) + 1)[None, :]  # (2m, p)
-        base = pw[np.arange(2 * m)[None, :], self.E]  # (T, 2m): z_i^{a_i}
-        mono = np.prod(base, axis=1)
-        D0 = np.empty((T, 2 * m), dtype=complex)
-        for i in range(2 * m):
-            part = base.copy()
-            part[:, i] = self.E[:, i] * pw[i, self.low[:, i]]
-            D0[:, i] = np.prod(part, axis=1)
+        mono, D0 = values_and_partials(zeta, self.E)  # (T,), (T, 2m)
         S = len(self.s)
         Y = self.H @ (self.onehot[:, :, None] * D0[:, None, :]).reshape(T, S * 2 * m)  # (T, S 2m)
         Yt = (Y.reshape(T, S, 2 * m).transpose(0, 2, 1).reshape(T * 2 * m, S) @ self.turn_s).reshape(T, 2 * m, -1)

@@ -46,6 +46,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from stepnf.dpim.multimode.monomials import values_and_partials
 from stepnf.errors import NumericalError
 
 #: Stable when every eigenvalue's real part is at most ``STABILITY_TOL sqrt(eps w |J|_1) + STABILITY_FLOOR eps w``
@@ -146,16 +147,10 @@ class ReducedSystem:
     def dfield(self, zeta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(dF/dx, dF/dy)`` (m, m) complex, x and y the real and imaginary parts of zeta."""
         m = self.m
-        pw = self._powers(zeta)
-        cols = np.arange(2 * m)[None, :]
-        base = pw[cols, self.E]  # (T, 2m)
+        _, D = values_and_partials(zeta, self.E)  # (T, 2m): d z^a / d z_l
         dz = np.zeros((m, 2 * m), dtype=complex)
         for l in range(2 * m):
-            lower = np.maximum(self.E[:, l] - 1, 0)
-            part = base.copy()
-            part[:, l] = self.E[:, l] * pw[l, lower]
-            vals = self.c * np.prod(part, axis=1)
-            np.add.at(dz[:, l], self.eq, vals)
+            np.add.at(dz[:, l], self.eq, self.c * D[:, l])
         dz[np.arange(m), np.arange(m)] += 1j * self.omega
         return dz[:, :m] + dz[:, m:], 1j * (dz[:, :m] - dz[:, m:])
 

@@ -80,6 +80,20 @@ def powers(Z: np.ndarray, alphas: list[Monomial]) -> np.ndarray:
     return out
 
 
+def values_and_partials(zeta: np.ndarray, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """At ``z = (zeta, conj zeta)`` (2m,), the monomials of exponents ``E`` (T, 2m): their values ``z^a`` (T,) and
+    partial derivatives ``d z^a / d z_i`` (T, 2m), ``z_i`` and its conjugate taken as independent variables."""
+    z = np.concatenate([zeta, np.conj(zeta)])
+    pw = z[:, None] ** np.arange(int(E.max(initial=1)) + 1)[None, :]  # (2m, p)
+    base = pw[np.arange(len(z))[None, :], E]  # (T, 2m): z_i^{a_i}
+    D = np.empty(E.shape, dtype=complex)
+    for i in range(len(z)):
+        part = base.copy()
+        part[:, i] = E[:, i] * pw[i, np.maximum(E[:, i] - 1, 0)]
+        D[:, i] = np.prod(part, axis=1)
+    return np.prod(base, axis=1), D
+
+
 def real_design(Z: np.ndarray, reps: list[Monomial]) -> np.ndarray:
     """The real design (L, R) of the representatives: per pair ``2 Re z^alpha, -2 Im z^alpha``, per
     self-conjugate ``Re z^alpha``; a coefficient vector ``(Re W, Im W)`` per pair (``W`` per self-conjugate) maps to
