@@ -10,13 +10,15 @@ branch. And three more::
 
     manifold: {modes, ratios, resonant_monomials, order, resonance, chosen, why}
     branch: {kind, masters, ratios, Omega: [...], A: [[A of masters[0]...], ...], stable: [...], valid_up_to,
-             valid_reason}                       # the continuing branch as traced (its points)
+             valid_reason, closed, rotations}    # the continuing branch as traced (its points)
     coupled_branches: [{same keys}, ...]         # the other branches of this master, born at the resonance
 
 ``Omega`` is the fundamental (rad per model time unit; master l moves at ``ratios[l] Omega``), ``A`` one
 list per master of the manifold (model length units), ``stable`` per point (rotating-frame eigenvalues,
 :meth:`stepnf.dpim.multimode.branches.ReducedSystem.stability`). ``resonant_monomials``: the nonlinear
-coefficients kept in the reduced dynamics of the masters' equations (one of each conjugate pair).
+coefficients kept in the reduced dynamics of the masters' equations (one of each conjugate pair). ``closed``: the
+branch came back to its first point (a loop, traced once); ``rotations``: how many rotations of exact twin masters
+it was traced modulo (1 on a standing wave of exact twins, :class:`stepnf.dpim.multimode.branches.ReducedSystem`).
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from stepnf.dpim.multimode.backbone import omega_at, point_at
-from stepnf.dpim.multimode.measures import OrbitMeasure
+from stepnf.dpim.multimode.measures import orbit_measure
 from stepnf.errors import NumericalError
 from stepnf.flags import new_flag
 from stepnf.keys.backbone import BackboneSpec
@@ -68,7 +70,8 @@ def branch_json(b: Any) -> dict[str, Any]:
     return {"kind": b.kind, "masters": [int(q) for q in b.masters], "ratios": [int(k) for k in b.ratios],
             "Omega": [json_float(x) for x in b.Omega], "A": [[json_float(x) for x in col] for col in b.A.T],
             "stable": [bool(s) for s in b.stable], "valid_up_to": json_float(b.valid_A),
-            "valid_reason": b.valid_reason}
+            "valid_reason": b.valid_reason, "closed": bool(b.closed),
+            "rotations": 0 if b.rotations is None else len(b.rotations)}
 
 
 def _w_max_at(manifold, branch, measure, A: float, transverse, h: float) -> float:
@@ -109,7 +112,7 @@ def manifold_report(manifold: Any, j: int, branches: Sequence[Any], spec: Backbo
         flags.append(new_flag("backbone_fold", mode=None,
                               message=f"the amplitude of mode {manifold.masters[j]} stops growing at A = {valid:.6g} "
                                       "on the branch that continues it (validity limit set there)"))
-    measure = OrbitMeasure(manifold, main.ratios) if transverse is not None else None
+    measure = orbit_measure(manifold, main.ratios) if transverse is not None else None
     if spec.amplitudes is not None:
         amps: list[float | None] = list(spec.amplitudes)
     elif spec.w_over_h is not None:

@@ -6,7 +6,7 @@ damping and forcing projected on the manifold, first order in them, every order 
 and in docs/design.md, "Forced responses on a manifold of several modes". Each forcing level's curve:
 
 * **main curve**: from the linear response at ``Omega = lo w_j`` (Newton at fixed Omega), pseudo-arclength
-  continuation (:func:`stepnf.dpim.multimode.branches.continue_branch`, in the scaled unknowns) until
+  continuation (:func:`stepnf.dpim.multimode.continuation.continue_branch`, in the scaled unknowns) until
   ``Omega > hi w_j``; its last point is moved onto ``Omega = hi w_j`` (Newton at fixed Omega);
 * **branch points**: a sign change of the bordered Jacobian's determinant ``det [J; t]`` between two points,
   refined by Brent's method along the chord (each trial point corrected onto the curve); from each, the branch born
@@ -34,8 +34,8 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from stepnf.dpim.multimode.branches import continue_branch
-from stepnf.dpim.multimode.measures import OrbitMeasure, Transverse
+from stepnf.dpim.multimode.continuation import continue_branch
+from stepnf.dpim.multimode.measures import OrbitMeasure, Transverse, orbit_measure
 from stepnf.errors import NumericalError, SceneError
 from stepnf.forced.damping import Damping, damping_ratio
 from stepnf.forced.manifold_projection import Projection
@@ -145,7 +145,7 @@ def manifold_forced_responses(manifold: Any, damping: Damping, levels: Sequence[
     w = np.asarray(manifold.omega, dtype=float)
     if master is not None:
         xi[mode] = damping_ratio(damping.spec, float(w[mode]), master)
-    measure = OrbitMeasure(manifold, k)
+    measure = orbit_measure(manifold, k)
     phi = np.asarray(manifold.phi, dtype=float).reshape(-1, len(masters))
     projection = Projection(manifold, damping.K, damping, k, mode)  # (its Grams: once for every level)
     out = []
@@ -197,8 +197,9 @@ def _trace(system: ForcedSystem, u0: np.ndarray, direction: np.ndarray, lo: floa
         return bool(state["away"] and d < NEAR)
     system.reach = REACH
     try:
-        return continue_branch(system, u0, direction=direction, stop=stop, max_points=MAX_POINTS, h0=0.02 * H_MAX,
-                               h_max=H_MAX)
+        pts, bps, _ = continue_branch(system, u0, direction=direction, stop=stop, max_points=MAX_POINTS,
+                                      h0=0.02 * H_MAX, h_max=H_MAX)  # (its own closing rule: stop)
+        return pts, bps
     finally:
         system.reach = np.inf
 

@@ -34,7 +34,7 @@ the scene's masters only): then ``lam = i w`` and nothing divides by ``xi``.
 
 The unknowns are scaled for the continuation: ``u = (Re zeta / a, Im zeta / a, Omega / b, 0)`` (``a`` the linear
 peak's ``|zeta_j|``, ``b = xi_j w_j`` the resonance's half-width), the last entry a dummy fixed at 0 by the
-"phase row", so :func:`stepnf.dpim.multimode.branches.continue_branch` follows these curves as it follows backbones.
+"phase row", so :func:`stepnf.dpim.multimode.continuation.continue_branch` follows these curves as it follows backbones.
 """
 from __future__ import annotations
 

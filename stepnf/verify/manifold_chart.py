@@ -53,12 +53,15 @@ def branches_of(arrays: dict, p: int, block: dict) -> list[Branch]:
                 raise NumericalError(f"verify: the run kept no array {name} (branch {i} of master mode {p})")
             return np.asarray(arrays[name])
         valid = js.get("valid_up_to")
+        turned = f"backbone_{p}_branch{i}_rotations"  # the rotations a standing wave of exact twins was traced with
         out.append(Branch(g("Omega").astype(float), g("zeta_re") + 1j * g("zeta_im"), g("A").astype(float),
                           g("stable").astype(bool), str(js["kind"]), tuple(int(q) for q in g("masters")),
                           g("ratios").astype(int), int(g("mode")), eps=g("eps").astype(float),
                           branch_points=[int(b) for b in g("branch_points")],
                           valid_A=None if valid is None else float(valid),
-                          valid_reason=str(js.get("valid_reason", ""))))
+                          valid_reason=str(js.get("valid_reason", "")),
+                          rotations=np.asarray(arrays[turned], dtype=float) if turned in arrays else None,
+                          closed=bool(js.get("closed", False))))
     return out
 
 

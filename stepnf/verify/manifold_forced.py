@@ -42,7 +42,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
-from stepnf.dpim.multimode.measures import OrbitMeasure
+from stepnf.dpim.multimode.measures import OrbitMeasure, orbit_measure
 from stepnf.dpim.multimode.monomials import powers
 from stepnf.errors import AdapterError, NumericalError, SceneError
 from stepnf.forced.damping import Damping
@@ -147,7 +147,7 @@ def manifold_forced_rows(result: Any, rec: Any, j: int, model: Any, damping: Dam
     k = np.asarray(man.ratios if man.ratios is not None else np.eye(len(man.masters))[mode], dtype=int)
     r = k / float(k[mode])
     phi = np.asarray(man.phi, dtype=float).reshape(-1, len(man.masters))
-    measure = OrbitMeasure(man, k)
+    measure = orbit_measure(man, k)
     rows: list[dict] = []
     for (level, value), stored, curve in zip(values, rec.frc, curves):
         why = _match(stored["peak"], curve.peak)

@@ -1,8 +1,8 @@
 """The backbone branches of one master on a multi-mode manifold: trace, measure, validity, table.
 
 :func:`backbone_branches` finds the starts of master ``mode``'s branches at a small amplitude
-(:func:`stepnf.dpim.multimode.branches.starts`: the branch that continues the linear mode and the coupled ones
-born at the resonance), continues each (:func:`stepnf.dpim.multimode.branches.continue_branch`) until master
+(:func:`stepnf.dpim.multimode.starts.starts`: the branch that continues the linear mode and the coupled ones
+born at the resonance), continues each (:func:`stepnf.dpim.multimode.continuation.continue_branch`) until master
 ``mode``'s amplitude ``A`` reaches ``A_stop``, and measures every point
 (:class:`stepnf.dpim.multimode.measures.OrbitMeasure`) and its stability. :func:`omega_at` refines the
 frequency at a given amplitude on a branch (Brent's method along the chord between two points, each
@@ -29,20 +29,30 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.optimize import brentq
 
-from stepnf.dpim.multimode.measures import OrbitMeasure, Transverse
-from stepnf.dpim.multimode.branches import Branch, ReducedSystem, continue_branch, normalise_phase, starts
+from stepnf.dpim.multimode.branches import Branch, ReducedSystem, normalise_phase
+from stepnf.dpim.multimode.continuation import continue_branch
+from stepnf.dpim.multimode.measures import OrbitMeasure, Transverse, orbit_measure
+from stepnf.dpim.multimode.starts import starts
 from stepnf.errors import NumericalError
 
 
 def _u(b: Branch, i: int) -> np.ndarray:
+    """Point i of ``b`` as the unknowns of its equations (the rotations' unfoldings at 0: their value on it)."""
     z = b.zeta[i]
-    return np.concatenate([z.real, z.imag, [b.Omega[i], b.eps[i]]])
+    s = 0 if b.rotations is None else len(b.rotations)
+    return np.concatenate([z.real, z.imag, [b.Omega[i], b.eps[i]], np.zeros(s)])
+
+
+def _system(manifold: Any, branch: Branch, ratios: Any = None) -> ReducedSystem:
+    """The equations ``branch`` was traced with, for ``manifold`` (the rotations it carried)."""
+    return ReducedSystem(manifold, branch.ratios if ratios is None else ratios, rotations=branch.rotations)
 
 
 def _scaled(system: ReducedSystem, a: float, b: float) -> tuple[ReducedSystem, np.ndarray]:
     """The same equations in the unknowns ``x = u / D``, ``D = (a, .., a, b, b)`` (``zeta / a``, ``Omega / b``,
-    ``eps / b``): the reduced dynamics of ``zeta / a`` in the time ``b t`` (coefficients ``c a^(|alpha| - 1) / b``,
-    frequencies ``omega / b``), so the scaled system's residual is ``G / (a b)`` and its stability the same.
+    ``eps / b``, the rotations' unfoldings ``mu / b``): the reduced dynamics of ``zeta / a`` in the time ``b t``
+    (coefficients ``c a^(|alpha| - 1) / b``, frequencies ``omega / b``), so the scaled system's residual is
+    ``G / (a b)`` and its stability the same.
     The continuation's arclength, its tangent and the chord's hyperplane (:func:`point_at`) are Euclidean in ``u``:
     in a model's units (zeta ~ 1e-4 m, Omega ~ 7.6e3 rad/s on the kappa = 25 cap) Omega alone would set them,
     the steps would be steps in Omega, and a fold of Omega (the backbone bending back) would be jumped over
@@ -52,7 +62,8 @@ def _scaled(system: ReducedSystem, a: float, b: float) -> tuple[ReducedSystem, n
          for i, e, c, d in zip(system.eq, system.E, system.c, deg)}
     ns = SimpleNamespace(omega=system.omega / b, f=f, ratios=system.k)
     m = system.m
-    return ReducedSystem(ns, system.k), np.concatenate([np.full(2 * m, a), [b, b]])
+    return (ReducedSystem(ns, system.k, rotations=system.R),
+            np.concatenate([np.full(2 * m, a), np.full(2 + len(system.R), b)]))
 
 
 def _units(system: ReducedSystem, mode: int, zeta_size: float) -> tuple[ReducedSystem, np.ndarray]:
@@ -64,26 +75,27 @@ def _units(system: ReducedSystem, mode: int, zeta_size: float) -> tuple[ReducedS
 def trace(system: ReducedSystem, measure: OrbitMeasure, u0: np.ndarray, kind: str, mode: int, masters,
           A_stop: float, *, max_points: int = 400, transverse: Transverse | None = None,
           h: float = 1.0) -> Branch:
-    """The branch through the solution ``u0`` (``Re zeta_mode`` growing first) up to ``A_mode >= A_stop``,
-    measured (module docstring)."""
+    """The branch through the solution ``u0`` of ``system`` (``Re zeta_mode`` growing first) up to ``A_mode >=
+    A_stop`` or back to ``u0`` (a loop: :attr:`Branch.closed`), measured (module docstring)."""
     m = system.m
     wmax = float(system.omega.max())
 
     def stop(u: np.ndarray) -> bool:
         A = measure.amplitudes(u[:m] + 1j * u[m:2 * m])
         return bool(A[mode] >= A_stop or A.max() >= 10 * A_stop or not 0 < u[2 * m] < 3 * wmax)
-    direction = np.zeros(2 * m + 2)
+    direction = np.zeros(len(u0))
     direction[mode] = 1.0
     # each step in units of its point (_scaled): zeta / |zeta|, Omega / the linear fundamental; steps <= ~10%
-    pts, bps = continue_branch(system, u0, direction=direction, stop=stop, max_points=max_points,
-                               units=lambda u: _units(system, mode, float(np.abs(u[:2 * m]).max())))
+    pts, bps, closed = continue_branch(system, u0, direction=direction, stop=stop, max_points=max_points,
+                                       units=lambda u: _units(system, mode, float(np.abs(u[:2 * m]).max())),
+                                       closes=True)
     if len(pts) > 1 and not pts[-1, 2 * m] > 0:  # the point that stopped the trace at Omega <= 0: no orbit
         pts, bps = pts[:-1], [i for i in bps if i < len(pts) - 2]
     zeta = np.asarray([normalise_phase(system, u[:m] + 1j * u[m:2 * m], mode) for u in pts])
     A = np.asarray([measure.amplitudes(z) for z in zeta])
     stable = np.asarray([system.stability(u)[0] for u in pts])
     b = Branch(pts[:, 2 * m].copy(), zeta, A, stable, kind, tuple(masters), system.k.copy(), mode,
-               eps=pts[:, 2 * m + 1].copy(), branch_points=bps)
+               eps=pts[:, 2 * m + 1].copy(), branch_points=bps, rotations=system.R.copy(), closed=closed)
     if transverse is not None:
         b.W_max = np.asarray([measure.w_max(z, transverse, h) for z in zeta])
     return b
@@ -100,17 +112,17 @@ def backbone_branches(manifold: Any, mode: int, A_stop: float, *, ratios: Any = 
     if ratios is None and manifold.ratios is None:  # no resonance between the masters: mode j alone moves
         ratios = np.eye(len(manifold.masters), dtype=int)[mode]
     system = ReducedSystem(manifold, ratios)
-    measure = OrbitMeasure(manifold, system.k)
+    measure = orbit_measure(manifold, system.k)
     r = A_stop / 200.0 if r0 is None else float(r0)
     found = starts(system, mode, r)
     if not found:
         raise NumericalError(f"backbone branches: no periodic orbit of the reduced dynamics of masters "
                              f"{list(manifold.masters)} starts at |zeta_{mode}| = {r:.3g}")
     out = []
-    for kind, u0 in found:
+    for kind, u0, sub in found:
         if kind.startswith("continues mode"):  # named by its index in the spectrum, not its position
             kind = f"continues mode {manifold.masters[mode]}"
-        b = trace(system, measure, u0, kind, mode, manifold.masters, A_stop, max_points=max_points,
+        b = trace(sub, measure, u0, kind, mode, manifold.masters, A_stop, max_points=max_points,
                   transverse=transverse, h=h)
         if tol is not None:
             b.valid_A, b.valid_reason = validity(manifold, b, tol, ratios=system.k, max_points=max_points)
@@ -125,10 +137,11 @@ def omega_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> 
 
 
 def point_at(manifold: Any, branch: Branch, A: float, *, ratios: Any = None) -> np.ndarray:
-    """The point ``u = (Re zeta, Im zeta, Omega, eps)`` of ``branch`` where master ``branch.mode``'s amplitude
-    is ``A`` (as :func:`omega_at`); its stability: ``ReducedSystem(manifold).stability(u)``."""
-    system = ReducedSystem(manifold, branch.ratios if ratios is None else ratios)
-    measure = OrbitMeasure(manifold, system.k)
+    """The point ``u = (Re zeta, Im zeta, Omega, eps, mu..)`` (mu: :class:`ReducedSystem`) of ``branch`` where
+    master ``branch.mode``'s amplitude is ``A`` (as :func:`omega_at`); its stability:
+    ``ReducedSystem(manifold).stability(u)``."""
+    system = _system(manifold, branch, ratios)
+    measure = orbit_measure(manifold, system.k)
     j, m = branch.mode, system.m
     Aj = branch.A[:, j]
     hit = np.flatnonzero((Aj[:-1] - A) * (Aj[1:] - A) <= 0)
@@ -171,11 +184,11 @@ def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
     if N < 5:
         return None, "no lower order"
     lower = manifold.truncated(N - 2)
-    system = ReducedSystem(lower, branch.ratios if ratios is None else ratios)
-    measure = OrbitMeasure(lower, system.k)
+    system = _system(lower, branch, ratios)
+    measure = orbit_measure(lower, system.k)
     j, m = branch.mode, system.m
     u0 = _u(branch, 0)
-    g = np.zeros(2 * m + 2)
+    g = np.zeros(len(u0))
     g[j] = 1.0
     done = system.correct(u0, lambda v: (float(v[j] - u0[j]), g), u0[:m] + 1j * u0[m:2 * m], maxiter=40)
     if done is None:
@@ -189,7 +202,7 @@ def validity(manifold: Any, branch: Branch, tol: float, *, ratios: Any = None,
     spline = CubicSpline(AL[:grow], low.Omega[:grow])
     w = float(np.asarray(manifold.omega)[j])
     k = float(branch.ratios[j])
-    shapes, shape_tol = OrbitMeasure(manifold, system.k), float(np.sqrt(tol))
+    shapes, shape_tol = orbit_measure(manifold, system.k), float(np.sqrt(tol))
     prev_A = 0.0
     prev_d = -1.0
     A = branch.A[:, j]
@@ -229,7 +242,10 @@ def tabulate(branch: Branch, rows: int = 12) -> str:
     head = (f"branch '{branch.kind}' of master {branch.masters[branch.mode]} on the manifold "
             f"{list(branch.masters)}, ratios {branch.ratios.tolist()}: {len(branch.Omega)} points, valid to A = "
             + ("-" if branch.valid_A is None else f"{branch.valid_A:.4g}")
-            + (f" ({branch.valid_reason})" if branch.valid_reason else ""))
+            + (f" ({branch.valid_reason})" if branch.valid_reason else "")
+            + ("; a closed loop (back to its first point)" if branch.closed else "")
+            + ("; traced modulo the rotation of exact twins" if branch.rotations is not None and len(branch.rotations)
+               else ""))
     cols = ["Omega"] + [f"A_{q}" for q in branch.masters] + [f"|zeta_{q}|" for q in branch.masters]
     cols += (["W_max"] if branch.W_max is not None else []) + ["stable"]
     lines = [head, "  ".join(f"{c:>11s}" for c in cols)]

@@ -8,13 +8,19 @@ On the orbit ``z_j(t) = zeta_j e^{i k_j Omega t}`` (:mod:`stepnf.dpim.multimode.
 ``A_j = (max_theta q_j - min_theta q_j) / 2``: found on a grid of ``64 N max(k)`` points over one period and
 refined by Newton's method on the series' derivative (to round-off). ``W_max`` is the largest ``|x_i|``
 over the transverse dofs and the period, found the same way.
+
+Cost: what a measure needs of the fields is formed once, on first use, and kept (no copy of ``W``): the scalars
+``phi_j^T M W[alpha]`` (m per monomial), the transverse rows of ``W``, and the Gram matrix
+``G = W^H M W`` (terms x terms) that makes :meth:`OrbitMeasure.shape_difference` independent of n. A manifold's
+measure is built once per resonance vector (:func:`orbit_measure`, kept on the manifold): the branches' tracing,
+validity and report ask for it hundreds of times (each :func:`stepnf.dpim.multimode.backbone.point_at`), and on
+the 38k-dof cap each rebuild copied ``W`` (200 MB at order 7) and each shape test multiplied it out again.
 """
 from __future__ import annotations
 
 from typing import Any, Callable, Sequence
 
 import numpy as np
-import scipy.sparse as sp
 
 Transverse = Callable[[np.ndarray], np.ndarray] | Sequence[int] | np.ndarray
 
@@ -31,10 +37,10 @@ class OrbitMeasure:
         self.n_of = (self.E[:, :m] - self.E[:, m:]) @ k  # harmonic of each monomial
         self.nmax = int(np.abs(self.n_of).max())
         self.pmax = int(self.E.max())
-        Ws = np.column_stack([np.asarray(manifold.W[a]) for a in self.keys])  # (n, terms)
-        self.Ws = Ws
-        phi = np.asarray(manifold.phi).reshape(Ws.shape[0], m)
-        self.P = (np.asarray(manifold.M @ phi).T) @ Ws  # (m, terms): phi_j^T M W[alpha]
+        self.W = manifold.W
+        n = len(np.asarray(manifold.W[self.keys[0]]))
+        Mphi = np.asarray(manifold.M @ np.asarray(manifold.phi).reshape(n, m))  # (n, m)
+        self.P = np.column_stack([Mphi.T @ np.asarray(manifold.W[a]) for a in self.keys])  # (m, terms)
         self.theta = np.linspace(0.0, 2 * np.pi, 64 * int(manifold.order) * max(int(np.abs(k).max()), 1),
                                  endpoint=False)
         ns = np.arange(self.nmax + 1)
@@ -42,7 +48,23 @@ class OrbitMeasure:
         self._transverse: tuple | None = None
         self.M, self.order_of = manifold.M, self.E.sum(axis=1)
         self._E: np.ndarray | None = None  # e^{i n theta} (2 nmax + 1, grid) of shape_difference
+        self._G: np.ndarray | None = None  # W^H M W (terms, terms) of shape_difference
 
+    def _stack(self) -> np.ndarray:
+        """The monomials' fields as columns (n, terms), complex: a temporary copy."""
+        return np.column_stack([np.asarray(self.W[a], dtype=complex) for a in self.keys])
+
+    def _gram(self) -> np.ndarray:
+        """``G = W^H M W`` (terms, terms), formed once (module docstring), in column blocks of 64 fields."""
+        if self._G is None:
+            T = len(self.keys)
+            Ws = self._stack()
+            G = np.empty((T, T), dtype=complex)
+            for c in range(0, T, 64):  # W^H (M W_c) = ((M W_c)^H W)^H: no conjugate copy of W
+                MW = np.asarray(self.M @ Ws[:, c:c + 64])
+                G[:, c:c + 64] = (MW.conj().T @ Ws).conj().T
+            self._G = G
+        return self._G
     def shape_difference(self, zeta: np.ndarray, cut: int) -> float:
         """``max_theta |x_high|_M / max_theta |x|_M`` on the orbit of ``zeta``: the terms of orders above ``cut``
         against the whole field (:meth:`stepnf.dpim.backbone.Backbone.shape_difference`, there at the same rho)."""
@@ -53,12 +75,13 @@ class OrbitMeasure:
         return float(np.sqrt(max(self._peak(mono * (self.order_of > cut)), 0.0) / whole)) if whole > 0 else 0.0
 
     def _peak(self, coef: np.ndarray) -> float:
-        """Largest ``|x(theta)|_M^2`` over the grid, ``x = sum_t coef_t W_t e^{i n_t theta}``: the harmonics' fields
-        ``C_h`` (n per harmonic), their Gram ``S = C^H M C``, then ``sum_hk conj(e_h) S_hk e_k``."""
+        """Largest ``|x(theta)|_M^2`` over the grid, ``x = sum_t coef_t W_t e^{i n_t theta}``: the harmonics'
+        fields ``C_h = sum_{n_t = h} coef_t W_t``, their Gram ``S = C^H M C = B^H G B`` (``B`` (terms, harmonics)
+        the coefficients by harmonic, ``G`` :meth:`_gram`), then ``sum_hk conj(e_h) S_hk e_k``."""
         T, H = len(coef), 2 * self.nmax + 1
-        B = sp.csr_matrix((coef, (np.arange(T), self.n_of + self.nmax)), shape=(T, H))
-        C = np.asarray(B.T @ self.Ws.T)  # (H, n)
-        S = C.conj() @ np.asarray(self.M @ C.T)  # (H, H)
+        B = np.zeros((T, H), dtype=complex)
+        B[np.arange(T), self.n_of + self.nmax] = coef
+        S = B.conj().T @ (self._gram() @ B)  # (H, H)
         return float(np.max(np.einsum("ht,ht->t", self._E.conj(), S @ self._E).real))
 
     def _monomials(self, zeta: np.ndarray) -> np.ndarray:
@@ -97,9 +120,11 @@ class OrbitMeasure:
         if self._transverse is None or self._transverse[0] is not transverse:
             if callable(transverse):  # a real linear map (an adapter's takes real fields: casting a complex field
                 # to float would drop its imaginary part), applied to both parts
-                T = np.asarray(transverse(self.Ws.real)) + 1j * np.asarray(transverse(self.Ws.imag))
+                Ws = self._stack()
+                T = np.asarray(transverse(Ws.real)) + 1j * np.asarray(transverse(Ws.imag))
             else:
-                T = self.Ws[np.asarray(transverse)]
+                rows = np.asarray(transverse)
+                T = np.column_stack([np.asarray(self.W[a])[rows] for a in self.keys])
             self._transverse = (transverse, np.asarray(T))
         a, b = self._series(self._transverse[1] * self._monomials(zeta)[None, :])
         x = a @ self._cos + b @ self._sin
@@ -132,3 +157,19 @@ def _refine(a: np.ndarray, b: np.ndarray, grid: np.ndarray, i: int, *, maximise:
             break
     best, g = f(t), f(t0)
     return max(best, g) if maximise else min(best, g)
+
+
+def orbit_measure(manifold: Any, ratios: Any) -> OrbitMeasure:
+    """The :class:`OrbitMeasure` of ``manifold`` for ``ratios``, built once and kept on the manifold (module
+    docstring, "Cost"; a manifold that takes no attribute gets a new one each call)."""
+    key = tuple(int(x) for x in np.asarray(ratios, dtype=int).ravel())
+    cache = getattr(manifold, "_orbit_measures", None)
+    if cache is None:
+        cache = {}
+        try:
+            manifold._orbit_measures = cache
+        except AttributeError:
+            return OrbitMeasure(manifold, ratios)
+    if key not in cache:
+        cache[key] = OrbitMeasure(manifold, ratios)
+    return cache[key]
