@@ -106,9 +106,9 @@ def _unit(n: int, where: list[int]) -> np.ndarray:
 
 
 def starts(system: ReducedSystem, j: int, r: float) -> list[tuple[str, np.ndarray, ReducedSystem]]:
-    """The distinct solutions of (*) at ``Re zeta_j = r`` reached by Newton from :func:`start_guesses`: ``(kind,
-    u, system)``, ``system`` with the rotations the point needs (:meth:`ReducedSystem.for_point`: a standing wave of
-    exact twins; ``u`` then carries their unfoldings)."""
+    """The distinct periodic orbits (the equations (*) of :mod:`stepnf.dpim.multimode.branches`) at ``Re zeta_j = r``
+    reached by Newton from :func:`start_guesses`: ``(kind, u, system)``, ``system`` with the rotations the point
+    needs (:meth:`ReducedSystem.for_point`: a standing wave of exact twins; ``u`` then carries their unfoldings)."""
     m = system.m
     gens = system.rotations()
     found: list[tuple[str, np.ndarray, ReducedSystem]] = []
