@@ -145,7 +145,11 @@ class ReducedSystem:
         self.c = np.asarray([c for _, _, c in rows], dtype=complex)
         self.pmax = int(self.E.max()) if len(rows) else 1
         self.R = np.zeros((0, m, m)) if rotations is None else np.asarray(rotations, dtype=float).reshape(-1, m, m)
-        self.n = 2 * m + 2 + len(self.R)
+
+    @property
+    def n(self) -> int:
+        """The number of unknowns, ``2m + 2 + s`` (s rotations)."""
+        return 2 * self.m + 2 + len(self.R)
 
     # ----------------------------------------------------------- symmetry
     def rotations(self) -> np.ndarray:
@@ -161,7 +165,6 @@ class ReducedSystem:
         wave of exact twins; ``rotations`` the candidates, None: :meth:`rotations`)."""
         out = copy.copy(self)
         out.R = symmetry.needed(self, zeta, self.rotations() if rotations is None else rotations)
-        out.n = 2 * self.m + 2 + len(out.R)
         return out
 
     def _powers(self, zeta: np.ndarray) -> np.ndarray:

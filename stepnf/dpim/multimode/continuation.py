@@ -79,13 +79,13 @@ def continue_branch(system: ReducedSystem, u0: np.ndarray, *, direction: np.ndar
         det_prev = det
         pts.append(new if D is None else new * D)
         t = t_new
-        # back at the start (up to a time shift) after leaving it: a loop, whichever way it arrives
-        d = _from_start(S, u0, pts[-1], D) if closes else np.inf
-        away = max(away, d) if closes else away
-        if closes and away > 4 * h and d <= h:
-            pts.append(u0.copy())
-            closed = True
-            break
+        if closes:  # back at the start (up to a time shift) after leaving it: a loop, whichever way it arrives
+            d = _from_start(S, u0, pts[-1], D)
+            away = max(away, d)
+            if away > 4 * h and d <= h:
+                pts.append(u0.copy())
+                closed = True
+                break
         if its <= 3:
             h = min(1.5 * h, h_max)
         if stop is not None and stop(pts[-1]):
