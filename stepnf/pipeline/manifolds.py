@@ -86,9 +86,38 @@ def _with_masters(scene: Any, masters: list) -> Any:
     return replace(scene, master_modes=masters)
 
 
-def explicit_plans(state: StageView, spec: Any) -> list[ManifoldPlan]:
-    """The scene's sets resolved among the computed modes (:func:`explicit_sets`)."""
-    return explicit_sets(state.scene, state.labels, state.basis.n_elastic, list(state.masters), spec)
+def explicit_plans(state: StageView, spec: Any, tol: float) -> list[ManifoldPlan]:
+    """The scene's sets resolved among the computed modes (:func:`explicit_sets`), each in resonance
+    (:func:`check_resonant`)."""
+    plans = explicit_sets(state.scene, state.labels, state.basis.n_elastic, list(state.masters), spec)
+    for plan in plans:
+        check_resonant(state.scene, plan, state.omega, tol, int(spec.order), state.labels)
+    return plans
+
+
+def check_resonant(scene: Any, plan: ManifoldPlan, omega: Any, tol: float, order: int, labels: list) -> None:
+    """SceneError unless the modes of an explicit set without ``ratios`` share a resonance the reduced dynamics can
+    hold: integers ``k`` with ``|k_0 w_j / w_0 - k_j| <= tol k_j`` (:func:`~stepnf.dpim.multimode.manifold.find_ratios`)
+    and ``max k <= order`` (a resonance of higher ratio has no resonant monomial up to the order). Without one
+    the manifold keeps no coupling: its branches would be the single-mode backbones at many times their cost, or
+    a mode's own near-resonance with the master's harmonics at a ratio the branches cannot follow."""
+    if plan.ratios is not None:  # given: parametrise_manifold checks them against the frequencies
+        return
+    w = np.asarray(omega, dtype=float)[list(plan.modes)]
+    k = find_ratios(w, tol, order)
+    if k is not None and int(k.max()) <= order:
+        return
+    base = plan.modes[0]
+    named = ", ".join(f"{q} {labels[q]}" if labels and q < len(labels) and labels[q] is not None else str(q)
+                      for q in plan.modes)
+    rel = ", ".join(f"{x:.4g}" for x in w / w[0])
+    raise SceneError(scene.file, f"{KEY}[{plan.index}]",
+                     f"the modes {named} are in no internal resonance within the resonance tolerance {tol:g}: "
+                     f"their frequencies are {rel} times mode {base}'s, and no integers k (1 <= k_j <= order "
+                     f"{order}) give |k_0 w_j / w_{base} - k_j| <= {tol:g} k_j. A manifold of them keeps no coupling "
+                     "(its backbones would be the single-mode ones): name only modes near 1:1 .. 1:"
+                     f"{min(order, MAX_RATIO)} of a master (the run's resonance flags list them; manifolds = \"auto\" "
+                     "chooses them), or widen [analysis.backbone] resonance")
 
 
 def explicit_sets(scene: Any, labels: list, n: int, masters: list[int], spec: Any) -> list[ManifoldPlan]:
@@ -190,7 +219,7 @@ def resolve_manifolds(state: StageView, spec: Any) -> list[ManifoldPlan]:
     if spec.manifolds is None:
         return []
     tol = state.tol.resonance if spec.resonance is None else float(spec.resonance)
-    return auto_plans(state, spec, tol) if spec.manifolds == "auto" else explicit_plans(state, spec)
+    return auto_plans(state, spec, tol) if spec.manifolds == "auto" else explicit_plans(state, spec, tol)
 
 
 def plan_name(plan: ManifoldPlan) -> str:

@@ -103,6 +103,7 @@ class VonKarmanForces:
         self.master, self.ks, self.index = subspace(gd, p)
         kb_top = 2 * max(self.ks)
         self.kbs = [0] if kp == 0 else [k for k in range(0, kb_top + 1, kp) if k in gd.airy_radial]
+        self._stack: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._tensors()
 
     def _tensors(self) -> None:
@@ -129,21 +130,49 @@ class VonKarmanForces:
                 A[:, offs[a]:offs[a + 1]] = md.families[kb].A
             self.B[kb], self.A[kb], self.xi4[kb] = 0.5 * (B + B.transpose(0, 2, 1)), A, md.xi4[kb]
 
+    def _stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every Airy class's tensors side by side: ``B`` (nb * m, m) (rows ``(b, i)``), ``A`` (nb, m), ``1 / xi4``
+        (nb,), ``nb`` the Airy functions of all classes; built once."""
+        if self._stack is None:
+            B = np.concatenate([self.B[kb] for kb in self.kbs])
+            self._stack = (np.ascontiguousarray(B.reshape(-1, B.shape[2])),
+                           np.concatenate([self.A[kb] for kb in self.kbs]),
+                           1.0 / np.concatenate([np.asarray(self.xi4[kb], dtype=float) for kb in self.kbs]))
+        return self._stack
+
     def __call__(self, X: np.ndarray) -> np.ndarray:
-        """``f(X)`` (k, m) for modal fields ``X`` (k, m) over :attr:`index` (module docstring)."""
+        """``f(X)`` (k, m) for modal fields ``X`` (k, m) over :attr:`index` (module docstring): one product with
+        every class's ``B`` at once (the classes' sums are one sum over all Airy functions ``b``)."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         md = self.data
-        omega2 = md.omega[self.index] ** 2
         root, eps = math.sqrt(md.kappa), md.eps_c
-        out = X * omega2
-        for kb in self.kbs:
-            B, A, xi4 = self.B[kb], self.A[kb], self.xi4[kb]
-            Bw = np.einsum("bij,kj->kbi", B, X, optimize=True)        # B_b(phi_i, w)
-            beta = np.einsum("kbi,ki->kb", Bw, X)                      # B_b(w, w)
-            a = X @ A.T                                                # A_b(w)
-            out = out + eps * np.einsum("kb,kbi->ki", (0.5 * beta - root * a) / xi4, Bw)
-            out = out - (0.5 * eps * root) * ((beta / xi4) @ A)
+        B, A, inv = self._stacked()
+        k, m = X.shape
+        Bw = (X @ B.T).reshape(k, -1, m)                                 # B_b(phi_i, w)   (k, nb, m)
+        beta = np.einsum("kbi,ki->kb", Bw, X)                              # B_b(w, w)       (k, nb)
+        a = X @ A.T                                                        # A_b(w)          (k, nb)
+        out = X * md.omega[self.index] ** 2
+        out += eps * np.einsum("kb,kbi->ki", (0.5 * beta - root * a) * inv, Bw)
+        out -= (0.5 * eps * root) * ((beta * inv) @ A)
         return out
+
+    def tangent(self, x: np.ndarray) -> np.ndarray:
+        """``Df(x)`` (m, m), the tangent stiffness of one modal field ``x`` (m,): the Hessian of the module
+        docstring's potential, ``diag(omega^2) + eps_c sum_b [c_b B_b + (B_b w)(B_b w - sqrt(kappa) A_b)^T / xi_b^4
+        - sqrt(kappa) A_b (B_b w)^T / xi_b^4]`` with ``c_b = (beta_b / 2 - sqrt(kappa) a_b) / xi_b^4`` (symmetric:
+        ``B_b`` is)."""
+        x = np.asarray(x, dtype=float)
+        md = self.data
+        root, eps = math.sqrt(md.kappa), md.eps_c
+        B, A, inv = self._stacked()
+        m = len(x)
+        Bw = (B @ x).reshape(-1, m)                                        # (nb, m)
+        c = (0.5 * (Bw @ x) - root * (A @ x)) * inv                        # (nb,)
+        J = (c @ B.reshape(-1, m * m)).reshape(m, m)
+        J += (Bw.T * inv) @ (Bw - root * A) - root * (A.T * inv) @ Bw
+        J *= eps
+        J[np.diag_indices(m)] += md.omega[self.index] ** 2
+        return J
 
     def transverse(self) -> Callable[[np.ndarray], np.ndarray]:
         """``Y`` (m, j) -> ``w / h`` (t, j) on the polar grid (module docstring)."""

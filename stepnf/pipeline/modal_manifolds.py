@@ -38,8 +38,8 @@ from stepnf.dpim.multimode.manifold import ManifoldResult
 from stepnf.dpim.parametrisation import DPIM, DPIMTolerances, ModeSpectrum, resonance_flags
 from stepnf.errors import NumericalError, SceneError
 from stepnf.pipeline.backbone import BACKBONE_FAILURES, failed_backbone
-from stepnf.pipeline.manifolds import (KEY, ManifoldPlan, auto_sets, explicit_sets, manifold_output, manifold_text,
-                                       parametrise_plan)
+from stepnf.pipeline.manifolds import (KEY, ManifoldPlan, auto_sets, check_resonant, explicit_sets, manifold_output,
+                                       manifold_text, parametrise_plan)
 from stepnf.pipeline.modal_forces import ModalSystem, modal_subspace, modal_system
 from stepnf.pipeline.outputs import BackboneOutput
 
@@ -109,6 +109,7 @@ def modal_plans(scene: Any, model: Any, omega: np.ndarray, labels: list, masters
     for plan in plans:
         if subspaces.holder(plan.modes) is None:
             raise SceneError(scene.file, f"{KEY}[{plan.index}]", uncoupled(scene, plan, labels, subspaces))
+        check_resonant(scene, plan, omega, tol, int(spec.order), labels)
     return plans
 
 

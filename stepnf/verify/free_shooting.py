@@ -24,13 +24,10 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from scipy.integrate import solve_ivp
 
 from stepnf.errors import NumericalError
-from stepnf.verify.periodic import refined_half_range
+from stepnf.verify.periodic import mass_solver, refined_half_range
 
 
 @dataclass
@@ -60,11 +57,7 @@ class FreeShooting:
         self.Mphi = np.asarray(M @ np.asarray(phi, dtype=float)).ravel()
         self.omega, self.rtol, self.jac_rtol = float(omega), rtol, jac_rtol
         self.force_evaluations = 0
-        if sp.issparse(M):
-            self.Minv = spla.splu(sp.csc_matrix(M)).solve
-        else:
-            cho = sla.cho_factor(np.asarray(M, dtype=float))
-            self.Minv = lambda b: sla.cho_solve(cho, b)
+        self.Minv = mass_solver(M)
 
     @property
     def work(self) -> dict:

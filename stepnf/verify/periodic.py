@@ -80,6 +80,25 @@ def highest_frequency(K, M) -> float:
     return float(np.sqrt(max(float(lam[-1]), 0.0)))
 
 
+def mass_solver(M) -> Callable[[np.ndarray], np.ndarray]:
+    """``b -> M^-1 b`` (M dense or sparse, factorised once) for the shootings' right-hand sides; a force that is
+    not finite (a Newton iterate far from the orbit, whose trajectory diverges) is a NumericalError there, not a
+    NaN the integrator would chase with ever smaller steps (or LAPACK's ValueError)."""
+    if sp.issparse(M):
+        solve = spla.splu(sp.csc_matrix(M)).solve
+    else:
+        cho = sla.cho_factor(np.asarray(M, dtype=float))
+        solve = lambda b: sla.cho_solve(cho, b, check_finite=False)  # noqa: E731 - checked below
+
+    def apply(b: np.ndarray) -> np.ndarray:
+        b = np.asarray(b, dtype=float)
+        if not np.isfinite(b).all():
+            raise NumericalError("shooting: the trajectory diverged (a force that is not finite): the Newton "
+                                 "iterate left the neighbourhood of the orbit")
+        return solve(b)
+    return apply
+
+
 def shooting_method(integrator: str, stiffness_ratio: float) -> str:
     """What :class:`Shooting` integrates with: ``"implicit"`` or ``"explicit"`` for ``integrator`` (one of
     :data:`INTEGRATORS`) at ``stiffness_ratio = w_max / w`` (``"auto"``: implicit above :data:`STIFF_RATIO`)."""
@@ -129,12 +148,7 @@ class Shooting:
         self.Mphi = np.asarray(M @ self.phi).ravel()
         self.omega = float(omega)
         self.rtol, self.jac_rtol = rtol, jac_rtol
-        if sp.issparse(M):
-            lu = spla.splu(sp.csc_matrix(M))
-            self.Minv = lu.solve
-        else:
-            cho = sla.cho_factor(np.asarray(M, dtype=float))
-            self.Minv = lambda b: sla.cho_solve(cho, b)
+        self.Minv = mass_solver(M)
         self.stiffness_ratio = (highest_frequency(K, M) if w_max is None else float(w_max)) / self.omega
         self.method = shooting_method(integrator, self.stiffness_ratio)
         self.steps = 2 * max(int(np.ceil(steps / 2)), 1)  # even: T / 2 is a node

@@ -21,7 +21,7 @@ from stepnf.io.results import read_hdf5, write_hdf5
 from stepnf.scene.parse import Tolerances, parse_scene
 from stepnf.pipeline.apply_method import modal_method
 from stepnf.pipeline.modal_coordinates import modal_dpim, run_modal_model
-from stepnf.pipeline.modal_forces import ModalSystem, modal_system
+from stepnf.pipeline.modal_forces import ModalSystem, VonKarmanForces, modal_system
 
 SIX = [(2, 0), (3, 0), (4, 0), (0, 1), (0, 2), (2, 1)]
 
@@ -52,6 +52,30 @@ def test_forces_reproduce_the_model_coefficients(shell, label):
     assert np.abs(G - g[sysm.index]).max() <= 1e-10 * max(np.abs(g).max(), 1.0)
     assert np.abs(np.delete(g, sysm.index)).max(initial=0.0) == 0.0
     assert H[sysm.local] == pytest.approx(shell.cubic_coefficient(p), rel=1e-10)
+
+
+@pytest.mark.parametrize("label", [(2, 1), (0, 2), (4, 0)], ids=str)
+def test_tangent_is_the_derivative_of_the_forces(shell, label):
+    """``VonKarmanForces.tangent(x)`` against central differences of the forces, and one batch against its rows.
+
+    A field of modal size ~0.3 (W_max/h ~ 0.4 on these modes, the backbones' range). Central differences with
+    step h = 1e-4 err by ``h^2 |D^3 f| / 6`` (the force is a cubic polynomial: a constant third derivative of
+    the order of the cubic coefficients, ~1e3..1e4 here, as ``|Df| ~ omega^2``): ~2e-9 relative, plus the
+    round-off ``1e-16 |f| / h ~ 1e-12``; 1e-7 bounds both (measured 7e-11 .. 2e-10 at h = 1e-5). The tangent is a
+    Hessian: symmetric to the products' round-off (~1e-16; 1e-13). A batch equals its rows evaluated one by one
+    to round-off (1e-13 relative).
+    """
+    vf = VonKarmanForces(shell, shell.index(*label))
+    n = len(vf.index)
+    x = 0.3 * np.random.default_rng(7).standard_normal(n) / np.sqrt(n)
+    J, h = vf.tangent(x), 1e-4
+    E = h * np.eye(n)
+    fd = ((vf(x + E) - vf(x - E)) / (2 * h)).T
+    assert np.abs(J - fd).max() <= 1e-7 * np.abs(J).max()
+    assert np.abs(J - J.T).max() <= 1e-13 * np.abs(J).max()
+    X = np.vstack([x, -2 * x, np.roll(x, 1)])
+    rows = np.vstack([vf(r)[0] for r in X])
+    assert np.abs(vf(X) - rows).max() <= 1e-13 * np.abs(rows).max()
 
 
 @pytest.mark.parametrize("label", SIX, ids=str)

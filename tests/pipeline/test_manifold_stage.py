@@ -65,9 +65,11 @@ def _write(folder: Path, name: str, text: str) -> Path:
     ("manifolds = [[1, 4]]\n", "analysis.backbone.manifolds[0]", "holds no master mode"),
     ('manifolds = [[0, "(2,1)"]]\n', "analysis.backbone.manifolds[0][1]", "gives no labels"),
     ("order = 5\nmanifolds = [[0, 4]]\nratios = [[1, 3]]\n", "analysis.backbone.ratios[0]", "do not match"),
+    # w2 / w0 = 2.3: near 3:7 only (1.4% off), beyond order 5's monomials
+    ("order = 5\nmanifolds = [[0, 2]]\n", "analysis.backbone.manifolds[0]", "in no internal resonance"),
 ])
 def test_scene_mistakes_exit_2(folder, capsys, backbone, key, says):
-    """Every mistake is one line naming the key and what is allowed, exit 2 (the last four once the modes are
+    """Every mistake is one line naming the key and what is allowed, exit 2 (the last five once the modes are
     known, before any parametrisation)."""
     path = _write(folder, "bad.toml", scene(backbone))
     assert main(["run", str(path), "-q"]) == 2

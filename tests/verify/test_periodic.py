@@ -57,3 +57,23 @@ def test_unreachable_amplitude_is_a_numerical_error():
     sh = Shooting(np.eye(1), np.eye(1) * W0 ** 2, f, np.array([1.0]), W0)
     with pytest.raises(NumericalError):
         sh.at_amplitude(2.5)
+
+
+@pytest.mark.parametrize("sparse", [False, True], ids=["dense-M", "sparse-M"])
+@pytest.mark.parametrize("free", [False, True], ids=["brake", "free"])
+def test_a_diverging_trajectory_is_a_numerical_error(sparse, free):
+    """A force that overflows (a Newton iterate far from the orbit: here the model's own inf beyond |x| = 2) is a
+    NumericalError naming the divergence, for both shootings and both kinds of M; it used to be LAPACK's
+    ValueError (dense M: a traceback in the middle of a continuation) or NaNs the integrator chased."""
+    from stepnf.verify.free_shooting import FreeShooting
+
+    f = lambda x: np.where(np.abs(x) > 2.0, np.inf, W0 ** 2 * x)  # noqa: E731
+    M = sp.identity(1, format="csr") if sparse else np.eye(1)
+    if free:
+        sh = FreeShooting(M, np.eye(1) * W0 ** 2, f, np.array([1.0]), W0)
+        with pytest.raises(NumericalError, match="diverged"):
+            sh.at_amplitude(3.0, (np.array([3.0]), np.zeros(1), 2 * np.pi / W0))
+    else:
+        sh = Shooting(M, np.eye(1) * W0 ** 2, f, np.array([1.0]), W0)
+        with pytest.raises(NumericalError, match="diverged"):
+            sh.orbit(3.0, np.array([3.0]), 2 * np.pi / W0)
