@@ -103,17 +103,17 @@ class VonKarmanForces:
         self.master, self.ks, self.index = subspace(gd, p)
         kb_top = 2 * max(self.ks)
         self.kbs = [0] if kp == 0 else [k for k in range(0, kb_top + 1, kp) if k in gd.airy_radial]
-        self._stack: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._tensors()
 
     def _tensors(self) -> None:
-        """Per Airy class kb (cos): ``B[kb]`` (nb, m, m) = ``B_b(phi_i, phi_j)`` (symmetrised), ``A[kb]`` (nb, m)
-        = ``A_b(phi_s)`` (zero unless ``k_s = kb``) and ``xi4[kb]`` (nb,)."""
+        """Every Airy class kb (cos) side by side, ``nb`` the Airy functions of all classes: :attr:`B` (nb * m, m),
+        rows ``(b, i)``, ``B_b(phi_i, phi_j)`` (symmetrised); :attr:`A` (nb, m) ``A_b(phi_s)`` (zero unless
+        ``k_s = kb``); :attr:`inv_xi4` (nb,) ``1 / xi_b^4``. The classes' sums are then one sum over ``b``."""
         md = self.data
         sizes = [len(md.families[k].omega) for k in self.ks]
         offs = np.concatenate([[0], np.cumsum(sizes)])
         m = int(offs[-1])
-        self.B, self.A, self.xi4 = {}, {}, {}
+        Bs, As, xi4 = [], [], []
         for kb in self.kbs:
             nb = md.airy_radial[kb].shape[0]
             B = np.zeros((nb, m, m))
@@ -128,25 +128,20 @@ class VonKarmanForces:
             if kb in self.ks:
                 a = self.ks.index(kb)
                 A[:, offs[a]:offs[a + 1]] = md.families[kb].A
-            self.B[kb], self.A[kb], self.xi4[kb] = 0.5 * (B + B.transpose(0, 2, 1)), A, md.xi4[kb]
-
-    def _stacked(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Every Airy class's tensors side by side: ``B`` (nb * m, m) (rows ``(b, i)``), ``A`` (nb, m), ``1 / xi4``
-        (nb,), ``nb`` the Airy functions of all classes; built once."""
-        if self._stack is None:
-            B = np.concatenate([self.B[kb] for kb in self.kbs])
-            self._stack = (np.ascontiguousarray(B.reshape(-1, B.shape[2])),
-                           np.concatenate([self.A[kb] for kb in self.kbs]),
-                           1.0 / np.concatenate([np.asarray(self.xi4[kb], dtype=float) for kb in self.kbs]))
-        return self._stack
+            Bs.append(0.5 * (B + B.transpose(0, 2, 1)))
+            As.append(A)
+            xi4.append(np.asarray(md.xi4[kb], dtype=float))
+        self.B = np.ascontiguousarray(np.concatenate(Bs).reshape(-1, m))
+        self.A = np.concatenate(As)
+        self.inv_xi4 = 1.0 / np.concatenate(xi4)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """``f(X)`` (k, m) for modal fields ``X`` (k, m) over :attr:`index` (module docstring): one product with
-        every class's ``B`` at once (the classes' sums are one sum over all Airy functions ``b``)."""
+        every class's ``B`` at once."""
         X = np.atleast_2d(np.asarray(X, dtype=float))
         md = self.data
         root, eps = math.sqrt(md.kappa), md.eps_c
-        B, A, inv = self._stacked()
+        B, A, inv = self.B, self.A, self.inv_xi4
         k, m = X.shape
         Bw = (X @ B.T).reshape(k, -1, m)                                 # B_b(phi_i, w)   (k, nb, m)
         beta = np.einsum("kbi,ki->kb", Bw, X)                              # B_b(w, w)       (k, nb)
@@ -164,7 +159,7 @@ class VonKarmanForces:
         x = np.asarray(x, dtype=float)
         md = self.data
         root, eps = math.sqrt(md.kappa), md.eps_c
-        B, A, inv = self._stacked()
+        B, A, inv = self.B, self.A, self.inv_xi4
         m = len(x)
         Bw = (B @ x).reshape(-1, m)                                        # (nb, m)
         c = (0.5 * (Bw @ x) - root * (A @ x)) * inv                        # (nb,)
