@@ -52,7 +52,7 @@ import numpy as np
 
 from stepnf.linalg.block_product import block_product
 from stepnf.dpim.polarisation import ForceBatch, PolarisationStats, checked_probe, probe_forces
-from stepnf.plugin.dofs import MAX_ROTATION, peak as dof_peak
+from stepnf.plugin.dofs import MAX_ROTATION
 
 #: The largest batch of probe fields one call of ``forces`` gets (bytes): a multi-mode manifold's order sends
 #: ``2 x nodes x directions`` fields (order 5 of two modes on the 38k-dof cap: 12672 fields, 3.6 GiB, then as
@@ -204,17 +204,19 @@ class OrderForcing:
         inv = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 0.0)[:, None]
         self._units[q] = (norms, W * inv, KW * inv)
 
-    def _peak(self, z: np.ndarray) -> float:
-        """The size of a probe direction the probe scales to: its largest entry, or with rotation dofs the
-        larger of its largest translation and its largest rotation times ``probe / MAX_ROTATION``.
+    def _peaks(self, Z: np.ndarray) -> np.ndarray:
+        """The size of each probe field (row of ``Z``) the probe scales to: its largest entry, or with rotation dofs
+        the larger of its largest translation and its largest rotation times ``probe / MAX_ROTATION``.
 
         The rule of :func:`stepnf.plugin.dofs.bounded_scale` (``probe / size`` = the smaller of
         ``probe / max|z_t|`` and ``MAX_ROTATION / max|z_r|``), kept in this form: ``bounded_scale`` rounds the
         second differently (one unit in the last place in about a third of the probes the rotation bounds),
         and the DPIM's forces stay bit for bit what they were."""
         if self.rotations is None:
-            return dof_peak(z, None)
-        return max(dof_peak(z, ~self.rotations), dof_peak(z, self.rotations) * self.probe / MAX_ROTATION)
+            return np.maximum(Z.max(axis=1), -Z.min(axis=1))  # max |z|, without an |Z| array
+        A = np.abs(Z)
+        return np.maximum(A[:, ~self.rotations].max(axis=1, initial=0.0),
+                          A[:, self.rotations].max(axis=1, initial=0.0) * self.probe / MAX_ROTATION)
 
     def _evaluate(self, new: list[Direction], p: int) -> None:
         """G and H3 of the new directions at every node: ONE call of ``forces`` with the fields +-s z (several
@@ -230,31 +232,54 @@ class OrderForcing:
             self._evaluate_chunk(new[k:k + per_call], J, n)
 
     def _evaluate_chunk(self, new: list[Direction], J: int, n: int) -> None:
-        U = np.empty((2 * J * len(new), n))  # +s z rows first, then their negatives; the fields built in place
-        rows = []  # (direction, node, s)
+        """One call for the directions ``new``: per direction its fields at every node at once (rows ``+s z``
+        first, then their negatives, built in place); a node where the direction is zero (zero units, or
+        ``u - v`` of equal units) is not sent, its values stay zero. In-place arithmetic on one scratch array:
+        the values are those of the expressions in the comments, bit for bit (a multi-mode manifold's arrays are
+        L x n each, 46 MB on the 38k-dof cap: a temporary per operation cost as much as the operation)."""
+        U = np.empty((2 * J * len(new), n))
+        tmp = np.empty((J, n))
+        blocks = []  # (direction, nodes sent, their scales s, first row)
+        R = 0
         for d in new:
-            for l in range(J):
-                z = U[len(rows)]
-                np.multiply(self._units[d[0][0]][1][l], d[0][1], out=z)
-                for q, c in d[1:]:
-                    z += c * self._units[q][1][l]
-                peak = self._peak(z)
-                if peak > 0:  # a zero direction (zero units, or u - v of equal units): zero values, not sent
-                    z *= self.probe / peak
-                    rows.append((d, l, self.probe / peak))
-        R = len(rows)
+            Z = U[R:R + J]
+            np.multiply(self._units[d[0][0]][1], d[0][1], out=Z)  # z = sum_q c_q u_q
+            for q, c in d[1:]:
+                Z += np.multiply(self._units[q][1], c, out=tmp)
+            peaks = self._peaks(Z)
+            live = np.flatnonzero(peaks > 0)
+            if len(live) < J:
+                Z[:len(live)] = Z[live]
+            s = self.probe / peaks[live]
+            Z[:len(live)] *= s[:, None]
+            blocks.append((d, live, s, R))
+            R += len(live)
         if not R:
             return
         U = U[:2 * R]
         np.negative(U[:R], out=U[R:])
         F = probe_forces(self.forces, U, self.stats)
-        for i, (d, l, s) in enumerate(rows):
-            fp, fm = F[i], F[R + i]
-            if d in self._g:
-                self._g[d][l] = (fp + fm) / (2.0 * s * s)
-            if d in self._h:
-                Kz = sum(c * self._units[q][2][l] for q, c in d)
-                self._h[d][l] = (fp - fm - 2.0 * s * Kz) / (2.0 * s ** 3)
+        for d, live, s, r0 in blocks:
+            k = len(live)
+            fp, fm = F[r0:r0 + k], F[R + r0:R + r0 + k]
+            every = k == J  # then straight into the kept array, else through tmp
+            if d in self._g:  # G = (fp + fm) / (2 s^2)
+                out = self._g[d] if every else tmp[:k]
+                np.add(fp, fm, out=out)
+                out /= (2.0 * s * s)[:, None]
+                if not every:
+                    self._g[d][live] = out
+            if d in self._h:  # H3 = (fp - fm - 2 s K z) / (2 s^3),  K z = sum_q c_q K u_q
+                out = self._h[d] if every else tmp[:k]
+                Kz = self._units[d[0][0]][2][live] * d[0][1]
+                for q, c in d[1:]:
+                    Kz += np.multiply(self._units[q][2][live], c, out=out)
+                Kz *= (2.0 * s)[:, None]
+                np.subtract(fp, fm, out=out)
+                out -= Kz
+                out /= (2.0 * s ** 3)[:, None]
+                if not every:
+                    self._h[d][live] = out
 
     def _n(self) -> int:
         return next(iter(self._units.values()))[1].shape[1]

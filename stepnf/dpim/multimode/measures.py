@@ -95,6 +95,11 @@ class OrbitMeasure:
         C = np.zeros((coef.shape[0], 2 * self.nmax + 1), dtype=complex)
         for n in np.unique(self.n_of):
             C[:, n + self.nmax] = coef[:, self.n_of == n].sum(axis=1)
+        return self._fourier(C)
+
+    def _fourier(self, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(a, b)`` (rows, nmax + 1), the cos and sin coefficients of the series whose ``e^{i n theta}``
+        coefficients are ``C`` (rows, 2 nmax + 1), ``n = -nmax..nmax``."""
         pos, neg = C[:, self.nmax:], C[:, self.nmax::-1]  # c_n and c_-n, n >= 0
         a = (pos + neg).real
         a[:, 0] = C[:, self.nmax].real
@@ -116,7 +121,15 @@ class OrbitMeasure:
     def w_max(self, zeta: np.ndarray, transverse: Transverse, h: float = 1.0) -> float:
         """Largest ``|x_i|`` over the transverse dofs and the period, divided by ``h``: ``transverse`` the
         indices of those dofs or a callable mapping real fields (n, k) to transverse displacements (t, k), linear
-        (the manifold's complex coefficients go through it as their real and imaginary parts)."""
+        (the manifold's complex coefficients go through it as their real and imaginary parts).
+
+        Each dof's harmonics ``C_h = sum_{n_alpha = h} T_alpha zeta^alpha`` by one product per harmonic (the
+        transverse rows kept sorted by harmonic); the grid is then searched only on the dofs that can hold its
+        maximum: ``sum_n |c_n|`` bounds ``|x_i(theta)|``, and a dof whose bound is below the largest value on
+        every 16th grid point (a subset of the grid; less 1e-12 relative for the bound's rounding) cannot reach the
+        grid's maximum. The same maximum as evaluating every dof on the grid (to round-off: the rows kept go
+        through the same products), at ~1/16 of the cost: this measure is called at every point of every branch
+        (348 times on the 38k-dof cap's order-7 manifold, 19 s of its run before, 1 s after)."""
         if self._transverse is None or self._transverse[0] is not transverse:
             if callable(transverse):  # a real linear map (an adapter's takes real fields: casting a complex field
                 # to float would drop its imaginary part), applied to both parts
@@ -125,12 +138,22 @@ class OrbitMeasure:
             else:
                 rows = np.asarray(transverse)
                 T = np.column_stack([np.asarray(self.W[a])[rows] for a in self.keys])
-            self._transverse = (transverse, np.asarray(T))
-        a, b = self._series(self._transverse[1] * self._monomials(zeta)[None, :])
-        x = a @ self._cos + b @ self._sin
+            order = np.argsort(self.n_of, kind="stable")
+            cuts = np.searchsorted(self.n_of[order], np.arange(-self.nmax, self.nmax + 2))
+            self._transverse = (transverse, np.ascontiguousarray(np.asarray(T)[:, order]), order, cuts)
+        _, Ts, order, cuts = self._transverse
+        mono = self._monomials(zeta)[order]
+        C = np.zeros((Ts.shape[0], 2 * self.nmax + 1), dtype=complex)
+        for i in range(2 * self.nmax + 1):
+            if cuts[i + 1] > cuts[i]:
+                C[:, i] = Ts[:, cuts[i]:cuts[i + 1]] @ mono[cuts[i]:cuts[i + 1]]
+        a, b = self._fourier(C)
+        coarse = np.abs(a @ self._cos[:, ::16] + b @ self._sin[:, ::16]).max()
+        keep = np.flatnonzero(np.abs(a).sum(axis=1) + np.abs(b).sum(axis=1) >= coarse * (1.0 - 1e-12))
+        x = a[keep] @ self._cos + b[keep] @ self._sin
         i, t = np.unravel_index(int(np.argmax(np.abs(x))), x.shape)
         sign = 1.0 if x[i, t] >= 0 else -1.0
-        return _refine(sign * a[i], sign * b[i], self.theta, int(t), maximise=True) / h
+        return _refine(sign * a[keep[i]], sign * b[keep[i]], self.theta, int(t), maximise=True) / h
 
 
 def _refine(a: np.ndarray, b: np.ndarray, grid: np.ndarray, i: int, *, maximise: bool) -> float:

@@ -9,18 +9,34 @@ at real ``z``. Each conjugate pair is represented by the larger of the two tuple
 
 **Sampling and projection.** The order-p forcing ``N_p(z) = sum_{q+r=p} G(w_q, w_r) + sum_{a+b+c=p} H(w_a, w_b,
 w_c)`` is a real homogeneous polynomial of degree p of ``z``; it is evaluated at ``L`` real sample points
-``z_l = r_l e^{i theta_l}`` (angles on the torus and radii ``r_l`` on the positive part of the unit sphere of
-R^m from a low-discrepancy sequence, :func:`sample_points`: homogeneity leaves m - 1 radial directions, which
-separate monomials of the same angular frequencies ``a - b`` but different ``a + b``), the SAME points at every
-order, so the probe directions of :class:`stepnf.dpim.nonlinear_terms.OrderForcing` are shared across orders (one
-batched force call per order), and its coefficients are the least-squares solution of the real design ``A_p``
-(L x #monomials of order p: columns ``2 Re z^alpha``, ``-2 Im z^alpha`` per pair, ``z^alpha`` per
-self-conjugate one), exact for a cubic force. ``L = OVERSAMPLING`` x the monomials of order N. Conditioning of
-``A_p`` with normalised columns, m = 2, N = 15 (measured, :attr:`MonomialSampling.condition`): 1.4 (p = 2),
-5.3 (p = 7), 10.2 (p = 9), 95 (p = 15) (uniform random points: 1.5, 9.7, 32, 220); m = 3, N = 9: 195 at p = 9.
-It grows with p because the radial part of the monomials (``r_1^{n_1} r_2^{n_2}``, ``n_1 + n_2 = p``) is a
-Bernstein-like basis; the error it amplifies lies in combinations of monomials of the same frequencies, small on
-the real torus. For m = 1 it is a Fourier design (condition <= 1.5 to N = 15).
+``z_l = r_l e^{i theta_l}``, the SAME points at every order, so the probe directions of
+:class:`stepnf.dpim.nonlinear_terms.OrderForcing` are shared across orders (one batched force call per order), and
+its coefficients are the least-squares solution of the real design ``A_p`` (L x #monomials of order p: columns
+``2 Re z^alpha``, ``-2 Im z^alpha`` per pair, ``z^alpha`` per self-conjugate one), exact for a cubic force.
+
+The points (:func:`select_points`): ``L = OVERSAMPLING`` x the monomials of order N, chosen among
+``CANDIDATES`` x L points of a low-discrepancy sequence (:func:`sample_points`: angles on the torus and radii on
+the positive part of the unit sphere of R^m; homogeneity leaves m - 1 radial directions, which separate
+monomials of the same angular frequencies ``a - b`` but different ``a + b``) by QR with column pivoting of
+order N's design (approximate Fekete points: each point adds the most volume to those chosen). Every force
+evaluation of the manifold is a probe field at one of these points (two per point and direction), so L sets its
+cost and memory (the probe values are kept L x n per direction). Condition of ``A_p`` with normalised columns,
+the largest over p = 1..N (measured, :attr:`MonomialSampling.condition`; always at p = N):
+
+    ========  =====  =====  =====  =====  =====  =======  =====  =====
+    m, N      2, 5   2, 7   2, 9   2, 11  2, 15  3, 5     3, 7   3, 9
+    ========  =====  =====  =====  =====  =====  =======  =====  =====
+    selected  10.0   17.9   32.5   61.5   203    17.3     104    91
+    sequence  13.4   38.0   56.1   77.6   242    57.2     1062   2378
+    (2 x)     4.0    10.2   14.9   25.8   95.4   11.5     122    195
+    ========  =====  =====  =====  =====  =====  =======  =====  =====
+
+(selected: L = 1.25 x, from 4 x the monomials; sequence: the sequence's first 1.25 x; "2 x": its first 2 x, the
+points before 2026-12-07, with 1.6 times as many force evaluations). The projection amplifies the probes'
+round-off (2.8e-15 of the largest term for a cubic, :mod:`stepnf.dpim.nonlinear_terms`) by at most the condition:
+below 1e-12 at every order here. The condition grows with p because the radial part of the monomials
+(``r_1^{n_1} r_2^{n_2}``, ``n_1 + n_2 = p``) is a Bernstein-like basis; the error it amplifies lies in
+combinations of monomials of the same frequencies, small on the real torus. For m = 1 it is a Fourier design.
 """
 from __future__ import annotations
 
@@ -29,13 +45,17 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 
 from stepnf.dpim.nonlinear_terms import OrderForcing
 from stepnf.linalg.block_product import block_product
 
-#: Sample points per monomial of the highest order: 2 keeps the design's condition at 95 for m = 2, N = 15
-#: (1.5: 127, 1.25: 242; measured on :func:`sample_points`).
-OVERSAMPLING = 2.0
+#: Sample points per monomial of the highest order (module docstring: with :func:`select_points` the design's
+#: condition is 18 for m = 2, N = 7 and 203 for N = 15; 1.5 gives 14 and 146, 1.1 gives 26 and 354).
+OVERSAMPLING = 1.25
+#: Candidate points per monomial of the highest order among which :func:`select_points` chooses (3: condition
+#: 146 instead of 91 for m = 3, N = 9; the QR of the candidates' design takes 16 s there, 1 s for m = 2, N = 15).
+CANDIDATES = 4
 
 Monomial = tuple[int, ...]
 
@@ -149,6 +169,19 @@ def sample_points(m: int, L: int) -> np.ndarray:
     return np.concatenate([z, z.conj()], axis=1)
 
 
+def select_points(m: int, order: int) -> np.ndarray:
+    """The manifold's sample points ``(z, conj z)`` (L, 2m), ``L = ceil(OVERSAMPLING x #monomials of order N)``:
+    chosen among the first ``CANDIDATES x #monomials`` points of :func:`sample_points` by QR with column pivoting
+    of the transposed design of order N (normalised columns), kept in the sequence's order (module docstring).
+    Deterministic: the same points for any BLAS thread count (checked with 1 and 2 threads, m = 1..3)."""
+    R = len(monomials(m, order))
+    L = int(np.ceil(OVERSAMPLING * R))
+    C = sample_points(m, max(L, CANDIDATES * R))
+    A = real_design(C, representatives(m, order))
+    _, piv = sla.qr((A / np.linalg.norm(A, axis=0)).T, mode="r", pivoting=True)
+    return C[np.sort(piv[:L])]
+
+
 @dataclass
 class MonomialSampling:
     """The sample points of a manifold of ``m`` masters to ``order``, and per order its representatives, real
@@ -164,8 +197,7 @@ class MonomialSampling:
     condition: dict[int, float] = field(init=False, default_factory=dict)
 
     def __post_init__(self):
-        L = int(np.ceil(OVERSAMPLING * len(monomials(self.m, self.order))))
-        self.Z = sample_points(self.m, L)
+        self.Z = select_points(self.m, self.order)
         for p in range(1, self.order + 1):
             reps = representatives(self.m, p)
             A = real_design(self.Z, reps)
