@@ -257,10 +257,20 @@ def run_all(args: argparse.Namespace, doc: dict) -> None:
 
 
 def commit() -> str:
-    """The checked-out commit, read from .git (no git process), '' where unreadable."""
+    """The checked-out commit, read from .git (no git process; a worktree's ``.git`` file followed to its git
+    directory and that to the common one for a branch), '' where unreadable."""
     try:
-        head = (ROOT / ".git" / "HEAD").read_text().strip()
-        return ((ROOT / ".git" / head[5:]).read_text() if head.startswith("ref: ") else head).strip()[:12]
+        git = ROOT / ".git"
+        if git.is_file():  # a worktree: "gitdir: PATH"
+            git = Path(git.read_text().split(":", 1)[1].strip())
+        head = (git / "HEAD").read_text().strip()
+        if not head.startswith("ref: "):
+            return head[:12]
+        common = git / (git / "commondir").read_text().strip() if (git / "commondir").exists() else git
+        for base in (git, common):
+            if (base / head[5:]).exists():
+                return (base / head[5:]).read_text().strip()[:12]
+        return ""
     except OSError:
         return ""
 
