@@ -168,10 +168,13 @@ def test_eigenmodes_and_shifted_solves(pair):
     lam, Phi = d.eigenmodes(16, 0.0)
     ref = sla.eigh(K, M, eigvals_only=True)[:16]
     # six rigid-body modes first, counted as rigid by the core's own criterion (stepnf.linalg.modal_analysis), then the
-    # elastic ones (the lowest at 3.7e-8 lambda_scale); dense LAPACK is accurate to ~eps lambda_max / lambda
-    # (~1e-9 here), shift-invert SLEPc better
-    assert np.all(np.abs(lam[:6]) <= 1e-11 * lambda_scale(K, M)) and lam[6] > 1e-9 * lambda_scale(K, M)
-    assert lam[6:] == pytest.approx(ref[6:], rel=1e-8)
+    # elastic ones (the lowest at 3.7e-8 lambda_scale); dense LAPACK (the reference) is accurate to ~eps lambda_scale
+    # in absolute terms (6e-9 relative for the lowest elastic mode), shift-invert SLEPc better: measured up to 1.8 eps
+    # lambda_scale (1.08e-8 relative, two BLAS threads; it passed a 1e-8 relative bound in earlier runs); asserted
+    # 5 eps lambda_scale
+    scale = lambda_scale(K, M)
+    assert np.all(np.abs(lam[:6]) <= 1e-11 * scale) and lam[6] > 1e-9 * scale
+    assert np.abs(lam[6:] - ref[6:]).max() <= 5 * np.finfo(float).eps * scale
     assert np.abs(Phi.T @ M @ Phi - np.eye(16)).max() <= 1e-8  # M-orthonormal
     # shifted solves, (K - sigma M) x = b on the free dofs and x = 0 on the fixed ones: by deflation + CG below
     # the computed spectrum (K^+ with an isostatic support; a shift between two modes), by a new MUMPS
