@@ -37,6 +37,7 @@ import argparse
 import datetime as dt
 import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -257,22 +258,13 @@ def run_all(args: argparse.Namespace, doc: dict) -> None:
 
 
 def commit() -> str:
-    """The checked-out commit, read from .git (no git process; a worktree's ``.git`` file followed to its git
-    directory and that to the common one for a branch), '' where unreadable."""
+    """The checked-out commit (12 hex digits) as ``bench/scale.py`` reads it, ``git rev-parse HEAD`` (a git
+    worktree included), '' where git cannot tell."""
     try:
-        git = ROOT / ".git"
-        if git.is_file():  # a worktree: "gitdir: PATH"
-            git = Path(git.read_text().split(":", 1)[1].strip())
-        head = (git / "HEAD").read_text().strip()
-        if not head.startswith("ref: "):
-            return head[:12]
-        common = git / (git / "commondir").read_text().strip() if (git / "commondir").exists() else git
-        for base in (git, common):
-            if (base / head[5:]).exists():
-                return (base / head[5:]).read_text().strip()[:12]
-        return ""
+        out = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True)
     except OSError:
         return ""
+    return out.stdout.strip()[:12] if out.returncode == 0 else ""
 
 
 def main() -> int:
