@@ -38,10 +38,11 @@ from stepnf.forced.damping import damped_frequency
 
 
 def manifold_grams(res: Any, C: Callable[[np.ndarray], np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The Gram matrices ``(Y_i^T M Y_j, Y_i^T C Y_j)`` of the coefficients of ``res`` (keys sorted) and ``M phi``
-    (n,): what :class:`Averaged` needs of the model's matrices, the same for every forcing level (one product of
-    each matrix with the coefficients per master, not per level)."""
-    Ys = np.asarray([res.Y[k] for k in sorted(res.Y)])  # (k, n)
+    """The Gram matrices ``(Y_i^T M Y_j, Y_i^T C Y_j)`` of the coefficients of ``res`` (a
+    :class:`~stepnf.dpim.parametrisation.DPIMResult`, keys sorted) and ``M phi`` (n,): what :class:`Averaged` needs of
+    the model's matrices, the same for every forcing level (one product of each matrix with the coefficients per
+    master, not per level)."""
+    Ys = res.stacked(sorted(res.Y))  # (k, n): the run's stacked coefficients (arrays()), no copy
     MY = np.asarray(res.M @ Ys.T).T
     CY = np.asarray(C(Ys))
     return Ys @ MY.T, Ys @ CY.T, np.asarray(res.M @ res.phi)

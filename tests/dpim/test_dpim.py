@@ -15,7 +15,7 @@ import scipy.sparse as sp
 from scipy.special import ellipk
 
 from stepnf.runtime.counters import Counters
-from stepnf.dpim.parametrisation import DPIM, DPIMTolerances, ModeSpectrum, phase_nodes, shared_nodes
+from stepnf.dpim.parametrisation import DPIM, DPIMResult, DPIMTolerances, ModeSpectrum, phase_nodes, shared_nodes
 from stepnf.dpim.solves import Solvers
 from stepnf.dpim.nonlinear_terms import planned_evaluations
 from stepnf.errors import NumericalError
@@ -440,3 +440,24 @@ def test_through_an_adapter_and_force_evaluator():
     assert res.c == pytest.approx(ref.c, rel=1e-12)
     assert c.force_evaluations == sum(x["force_evaluations"] for x in res.counts) == sum(planned_evaluations(7)) == 176
     assert c.solver_runs == 6  # orders 2..7, each <= 256 fields
+
+
+def test_arrays_hold_the_coefficients_once():
+    """``arrays()``'s ``Y`` and the result's ``Y`` share their memory (a run keeps both for every master): the same
+    numbers bit for bit, the same array when asked again, a new one when ``Y`` changed."""
+    rng = np.random.default_rng(3)
+    keys = [(p, m) for p in range(1, 6) for m in range(p % 2, p + 1, 2)]
+    Y = {k: rng.standard_normal(7) for k in reversed(keys)}  # not in sorted order
+    before = {k: v.copy() for k, v in Y.items()}
+    res = DPIMResult(1.3, Y[(1, 1)], sp.identity(7), 5, Y, np.array([0.1, 0.2]))
+    A = res.arrays()["Y"]
+    assert [tuple(k) for k in res.arrays()["index"]] == sorted(keys)
+    for i, k in enumerate(sorted(keys)):
+        assert np.array_equal(A[i], before[k]) and np.array_equal(res.Y[k], before[k])
+        assert np.shares_memory(res.Y[k], A)
+    assert res.arrays()["Y"] is A
+    res.Y[(5, 5)] = np.zeros(7)  # a coefficient replaced: stacked again, with the new values
+    B = res.arrays()["Y"]
+    assert B is not A and np.array_equal(B[-1], np.zeros(7))
+    a = res.backbone().a  # what reads the rows reads the same numbers (the same operations: bit for bit)
+    assert a[5, 5] == 0.0 and a[3, 1] == float((res.M @ before[(1, 1)]) @ before[(3, 1)])
