@@ -108,7 +108,7 @@ class Backbone:
         kept = self._transverse_kept
         if kept is not None and kept[0] is transverse and kept[1] == keys:
             return kept[2]
-        Ystack = np.column_stack([self.res.Y[k] for k in keys])  # (n, terms)
+        Ystack = self.res.stacked(keys).T  # (n, terms): a view of the result's own stack, no copy
         Tc = np.asarray(transverse(Ystack) if callable(transverse) else Ystack[np.asarray(transverse)], dtype=float)
         self._transverse_kept = (transverse, keys, Tc)
         return Tc
@@ -160,7 +160,7 @@ class Backbone:
         """``(T3, sums)`` of :meth:`w_max_many`: the transverse parts as ``T3[i, p, m]`` and ``(N + 1, 3 t)`` sums
         ``[sum_m T3, sum_m (-1)^m T3, sum_m |T3|]`` (x_i at theta = 0, pi, the bound); kept for the last
         ``transverse``."""
-        keys = list(self.res.Y)
+        keys = sorted(self.res.Y)  # the order of the result's stack (DPIMResult.stacked); each (p, m) has one column
         Tc = self._transverse_parts(keys, transverse)
         kept = self._sums_kept
         if kept is not None and kept[0] is Tc:
@@ -178,8 +178,8 @@ class Backbone:
         """``max_theta |x_N - x_{N-2}|_M / max_theta |x_N|_M`` at ``rho``: the terms of orders N-1 and N
         against the whole field, on the phase grid (``Y^T M Y`` formed once)."""
         if self._gram is None:
-            keys = list(self.res.Y)
-            Ystack = np.column_stack([self.res.Y[k] for k in keys])
+            keys = sorted(self.res.Y)
+            Ystack = self.res.stacked(keys).T  # (n, terms): a view of the result's own stack, no copy
             self._gram = (keys, Ystack.T @ (self.res.M @ Ystack))
         keys, G = self._gram
         P = np.zeros((len(keys), self.N + 1))
